@@ -1,0 +1,58 @@
+"""Build script: the same file serves `colcon build` (ament_python) and `pip install`."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'landing_zone'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(include=['landing_zone', 'landing_zone.*',
+                                    'msg_adapters', 'msg_adapters.*']),
+    package_data={'landing_zone': ['py.typed']},
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/models', glob('models/*.safetensors') + glob('models/*.md')),
+    ],
+    python_requires='>=3.10',
+    # Loose ranges for users; this machine's exact pins live in requirements.txt.
+    install_requires=[
+        'numpy>=1.24',
+        'scipy>=1.10',
+        'numba>=0.59',
+        'torch>=2.2',
+        'safetensors>=0.4',
+        'rosbags>=0.10',
+        'mcap>=1.1',
+        'trimesh>=4.0',
+        'embreex>=2.17; platform_machine in "x86_64 AMD64 aarch64 arm64"',
+        'scikit-learn>=1.3',
+        'matplotlib>=3.7',
+        'typer>=0.12',
+        'tqdm>=4.60',
+        'rich>=13',
+        'optuna>=3.5',
+        'pyyaml>=6',
+    ],
+    extras_require={
+        # For machines without a system ROS 2 Jazzy (the wheels from PyPI).
+        'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
+        'dev': ['pytest>=7', 'hypothesis>=6', 'pytest-timeout>=2', 'flake8>=6', 'mypy>=1.8'],
+        'bench': ['octomap-python>=1.9'],
+    },
+    zip_safe=True,
+    maintainer='landing_zone developers',
+    maintainer_email='dev@landing-zone.example',
+    description='Landing zone detection from LiDAR with a 3D CNN (ROS 2 Jazzy).',
+    license='BSD-3-Clause',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'assessor = landing_zone.node:main',
+            'landing-zone = landing_zone.cli:main',
+        ],
+    },
+)
