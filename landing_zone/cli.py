@@ -41,6 +41,12 @@ class DatasetName(str, Enum):
     hybrid = 'hybrid'
 
 
+@app.callback()
+def _root() -> None:
+    # A callback keeps typer in command-group mode even while few commands exist.
+    pass
+
+
 # --- bench ------------------------------------------------------------------------------------
 
 @app.command(help='Run the project\'s performance benchmarks and print their figures.\n\n'
