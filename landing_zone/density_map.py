@@ -272,6 +272,8 @@ class DensityMap:
         self._pool = np.zeros((PARTS, 2 * self._worst, _COLD_BYTES), np.uint8)
         self._used = np.zeros(PARTS, np.int64)
         self.parallel = bool(parallel)
+        # XY cell (voxels) the batch is counting-sorted by before the walk; 0 keeps input order
+        self.sort_tile = SORT_TILE
         self.lo = np.zeros(3, np.int64)
         if tile_vox is None:
             tile_vox = max(1, int(round(1.0 / self.voxel_size)))
@@ -348,7 +350,7 @@ class DensityMap:
         lo = self.lo
         hi = self.hi
         uo, up, order, nvalid, (_, nonfinite, degenerate, missed, outside) = prepare_rays(
-            pts, org, self.voxel_size, lo, hi, SORT_TILE)
+            pts, org, self.voxel_size, lo, hi, self.sort_tile or int(self._dims.max()))
         stats.nonfinite = int(nonfinite)
         stats.degenerate = int(degenerate)
         stats.missed = int(missed)

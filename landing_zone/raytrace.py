@@ -124,16 +124,24 @@ def _axis_state(o: float, d: float, g0: int, g1: int, te: float, ce: int) -> int
     if not (est > -MAX_LATTICE_COORD and est < MAX_LATTICE_COORD):
         est = o
     c = int(math.floor(est))
+    lo = min(g0, g1)
+    hi = max(g0, g1)
+    # Fast path: the position at te is far (beyond any rounding of est or of the crossing
+    # parameters) from every plane, so the cell is floor(est) whatever the direction.
+    frac = est - c
+    margin = 1e-9 * (abs(o) + abs(d) + 1.0)
+    if margin < frac < 1.0 - margin:
+        return min(max(c, lo), hi)
+    c = min(max(c, lo), hi)
+    # Near a plane: count the events exactly with the walk's own formula for their parameter.
     if g1 > g0:
         # up: the event into cell c + 1 is at plane c + 1, class 0 (counted when t <= te)
-        c = min(max(c, g0), g1)
         while c < g1 and (c + 1 - o) / d <= te:
             c += 1
         while c > g0 and (c - o) / d > te:
             c -= 1
     else:
         # down: the event out of cell c is at plane c, class 1 (counted when (t, 1) <= (te, ce))
-        c = min(max(c, g1), g0)
         while c > g1:
             t = (c - o) / d
             if t < te or (t == te and ce == 1):
@@ -157,15 +165,26 @@ def _first_cell(ox, oy, oz, dx, dy, dz, g0x, g0y, g0z, g1x, g1y, g1z,
     tz, kz, okz = _axis_entry(oz, dz, g0z, g1z, blz, bhz)
     if not (okx and oky and okz):
         return False, 0, 0, 0
-    # the last axis to come in decides the entry event
-    te, ce = tx, kx
+    # the last axis to come in decides the entry event; its own cell is the box's face cell
+    te, ce, axis = tx, kx, 0
     if ty > te or (ty == te and ky > ce):
-        te, ce = ty, ky
+        te, ce, axis = ty, ky, 1
     if tz > te or (tz == te and kz > ce):
-        te, ce = tz, kz
-    cx = _axis_state(ox, dx, g0x, g1x, te, ce)
-    cy = _axis_state(oy, dy, g0y, g1y, te, ce)
-    cz = _axis_state(oz, dz, g0z, g1z, te, ce)
+        te, ce, axis = tz, kz, 2
+    if te == -_INF:
+        return True, g0x, g0y, g0z  # the origin is inside
+    if axis == 0:
+        cx = blx if kx == 0 else bhx - 1
+    else:
+        cx = _axis_state(ox, dx, g0x, g1x, te, ce)
+    if axis == 1:
+        cy = bly if ky == 0 else bhy - 1
+    else:
+        cy = _axis_state(oy, dy, g0y, g1y, te, ce)
+    if axis == 2:
+        cz = blz if kz == 0 else bhz - 1
+    else:
+        cz = _axis_state(oz, dz, g0z, g1z, te, ce)
     # another axis may already have left the box by then: the segment only grazes past it
     inside = blx <= cx < bhx and bly <= cy < bhy and blz <= cz < bhz
     return inside, cx, cy, cz
@@ -278,6 +297,27 @@ def prepare_rays(points: np.ndarray, origins: np.ndarray, voxel_size: float,
 # --- the walk ----------------------------------------------------------------------------------
 
 @nb.njit(cache=True, nogil=True, error_model='numpy')
+def _carry(hot, cold_at, idx, cdir, pool, used, part):
+    """A hot byte at 255 gets one more count: carry into its brick's cold block.
+
+    Rare (once per 256 counts of a voxel at most), so a call is fine here; the block is taken
+    from the pool of the thread's own part, which the caller made sure has room.
+    """
+    brick = idx >> 6
+    slot = cdir[brick]
+    if slot < 0:
+        slot = used[part]
+        used[part] = slot + 1
+        cdir[brick] = slot
+    w = cold_at + (idx & 63)
+    high = pool[part, slot, w]
+    if high != 255:
+        pool[part, slot, w] = high + 1
+        hot[idx] = 0
+    # else: 65535 reached, the count saturates
+
+
+@nb.njit(cache=True, nogil=True, error_model='numpy')
 def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
     """Walk the part of every ray inside the storage slab ``part`` owns.
@@ -368,66 +408,20 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
         offx = (sx >> 2) * sx_stride + (sx & 3) * 16
         offy = (sy >> 2) * sy_stride + (sy & 3) * 4
         offz = (sz >> 2) * 64 + (sz & 3)
-        is_hit = False
+        reached = False  # the walk arrived at the return's cell (inside this box)
         while True:
-            # next event: the smallest (t, class); a strict minimum is the common case
-            mvx = False
-            mvy = False
-            mvz = False
-            if tx < ty and tx < tz:
-                mvx = True
-            elif ty < tx and ty < tz:
-                mvy = True
-            elif tz < tx and tz < ty:
-                mvz = True
-            else:
-                tm = min(tx, min(ty, tz))
-                if tm == _INF:
-                    is_hit = True
-                else:
-                    mvx = tx == tm
-                    mvy = ty == tm
-                    mvz = tz == tm
-                    # up-steps at t happen at t, down-steps just after it
-                    if (mvx and stx > 0) or (mvy and sty > 0) or (mvz and stz > 0):
-                        mvx = mvx and stx > 0
-                        mvy = mvy and sty > 0
-                        mvz = mvz and stz > 0
             idx = offx + offy + offz
-            nv += 1
-            if is_hit:
-                v = hits[idx]
-                cold_at = 0
-                nh += 1
-            else:
+            # next event: the smallest (t, class); a strict minimum is the common case and
+            # each axis gets its own block so that one unpredictable branch decides it
+            if tx < ty and tx < tz:
                 v = passes[idx]
-                cold_at = 64
-            if v != 255:
-                if is_hit:
-                    hits[idx] = v + 1
-                else:
+                if v != 255:
                     passes[idx] = v + 1
-            else:
-                # the hot byte wraps: carry into the brick's cold block (rare)
-                brick = idx >> 6
-                slot = cdir[brick]
-                if slot < 0:
-                    slot = used[part]
-                    used[part] = slot + 1
-                    cdir[brick] = slot
-                w = cold_at + (idx & 63)
-                hi = pool[part, slot, w]
-                if hi != 255:
-                    pool[part, slot, w] = hi + 1
-                    if is_hit:
-                        hits[idx] = 0
-                    else:
-                        passes[idx] = 0
-            if is_hit:
-                break
-            if (mvx and cx == ex) or (mvy and cy == ey) or (mvz and cz == ez):
-                break  # the next cell is outside the box
-            if mvx:
+                else:
+                    _carry(passes, 64, idx, cdir, pool, used, part)
+                nv += 1
+                if cx == ex:
+                    break
                 cx += stx
                 sx += stx
                 if sx == mx:
@@ -435,11 +429,16 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 elif sx < 0:
                     sx = mx - 1
                 offx = (sx >> 2) * sx_stride + (sx & 3) * 16
-                if cx == g1x:
-                    tx = _INF
+                tx = ((cx + 1 if stx > 0 else cx) - ox) / dx if cx != g1x else _INF
+            elif ty < tz and ty < tx:
+                v = passes[idx]
+                if v != 255:
+                    passes[idx] = v + 1
                 else:
-                    tx = ((cx + 1 if stx > 0 else cx) - ox) / dx
-            if mvy:
+                    _carry(passes, 64, idx, cdir, pool, used, part)
+                nv += 1
+                if cy == ey:
+                    break
                 cy += sty
                 sy += sty
                 if sy == my:
@@ -447,11 +446,16 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 elif sy < 0:
                     sy = my - 1
                 offy = (sy >> 2) * sy_stride + (sy & 3) * 4
-                if cy == g1y:
-                    ty = _INF
+                ty = ((cy + 1 if sty > 0 else cy) - oy) / dy if cy != g1y else _INF
+            elif tz < tx and tz < ty:
+                v = passes[idx]
+                if v != 255:
+                    passes[idx] = v + 1
                 else:
-                    ty = ((cy + 1 if sty > 0 else cy) - oy) / dy
-            if mvz:
+                    _carry(passes, 64, idx, cdir, pool, used, part)
+                nv += 1
+                if cz == ez:
+                    break
                 cz += stz
                 sz += stz
                 if sz == mz:
@@ -459,10 +463,53 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 elif sz < 0:
                     sz = mz - 1
                 offz = (sz >> 2) * 64 + (sz & 3)
-                if cz == g1z:
-                    tz = _INF
+                tz = ((cz + 1 if stz > 0 else cz) - oz) / dz if cz != g1z else _INF
+            else:
+                # a tie (edge or corner) or the end of the ray
+                tm = min(tx, min(ty, tz))
+                if tm == _INF:
+                    reached = True
+                    break
+                mvx = tx == tm
+                mvy = ty == tm
+                mvz = tz == tm
+                # up-steps at t happen at t, down-steps just after it
+                if (mvx and stx > 0) or (mvy and sty > 0) or (mvz and stz > 0):
+                    mvx = mvx and stx > 0
+                    mvy = mvy and sty > 0
+                    mvz = mvz and stz > 0
+                v = passes[idx]
+                if v != 255:
+                    passes[idx] = v + 1
                 else:
-                    tz = ((cz + 1 if stz > 0 else cz) - oz) / dz
+                    _carry(passes, 64, idx, cdir, pool, used, part)
+                nv += 1
+                if (mvx and cx == ex) or (mvy and cy == ey) or (mvz and cz == ez):
+                    break  # the next cell is outside the box
+                if mvx:
+                    cx += stx
+                    sx = (sx + stx) % mx
+                    offx = (sx >> 2) * sx_stride + (sx & 3) * 16
+                    tx = ((cx + 1 if stx > 0 else cx) - ox) / dx if cx != g1x else _INF
+                if mvy:
+                    cy += sty
+                    sy = (sy + sty) % my
+                    offy = (sy >> 2) * sy_stride + (sy & 3) * 4
+                    ty = ((cy + 1 if sty > 0 else cy) - oy) / dy if cy != g1y else _INF
+                if mvz:
+                    cz += stz
+                    sz = (sz + stz) % mz
+                    offz = (sz >> 2) * 64 + (sz & 3)
+                    tz = ((cz + 1 if stz > 0 else cz) - oz) / dz if cz != g1z else _INF
+        if reached:
+            idx = offx + offy + offz
+            v = hits[idx]
+            if v != 255:
+                hits[idx] = v + 1
+            else:
+                _carry(hits, 0, idx, cdir, pool, used, part)
+            nv += 1
+            nh += 1
         # every cell visited lies in the XY box of the first and last one (monotone walk)
         kx0 = min(startx, cx) // tile_vox - dlo[0]
         kx1 = max(startx, cx) // tile_vox - dlo[0]
