@@ -361,7 +361,7 @@ class DensityMap:
         resume = np.zeros(PARTS, np.int64)
         counters = np.zeros((PARTS, 2), np.int64)
         while True:
-            trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._dims, self._hits,
+            trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
                        self._passes, self._cdir, self._pool, self._used, resume,
                        self._dirty, self._dirty_lo, self.tile_vox, counters,
                        parallel=self.parallel)
@@ -459,6 +459,8 @@ class DensityMap:
                 a = base + rep * my + part * half
                 b = a + half
                 self._yint[part, rep] = (max(a, wy0), max(min(b, wy1), max(a, wy0)))
+        # the linear-storage share of every window index per axis (see raytrace._trace_part)
+        self._tables = _offset_tables(self.lo, self._n, self._dims)
         tv = self.tile_vox
         self._dirty_lo = self.lo[:2] // tv
         klast = (self.hi[:2] - 1) // tv
@@ -592,6 +594,19 @@ class DensityMap:
         return (f'DensityMap(shape={self.shape}, voxel_size={self.voxel_size}, '
                 f'lo={self.lo.tolist()}, box=[{lo_m.round(3).tolist()}, '
                 f'{hi_m.round(3).tolist()}] m, {self.nbytes / 1e6:.1f} MB)')
+
+
+def _offset_tables(lo: np.ndarray, n: np.ndarray, dims: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per axis, the linear storage offset of window index ``lo + i`` (ring, brick, cell)."""
+    sz_stride = _BRICK_VOX
+    sy_stride = int(dims[2] // BRICK) * sz_stride
+    sx_stride = int(dims[1] // BRICK) * sy_stride
+    out = []
+    for axis, (stride, inner) in enumerate(((sx_stride, 16), (sy_stride, 4), (sz_stride, 1))):
+        s = (lo[axis] + np.arange(n[axis], dtype=np.int64)) % dims[axis]
+        out.append((s >> 2) * stride + (s & 3) * inner)
+    return out[0], out[1], out[2]
 
 
 def _ring_ranges(g0: int, g1: int, m: int) -> list[tuple[int, int]]:

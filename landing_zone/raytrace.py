@@ -318,23 +318,22 @@ def _carry(hot, cold_at, idx, cdir, pool, used, part):
 
 
 @nb.njit(cache=True, nogil=True, error_model='numpy')
-def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
-                cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
+def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
+                passes, cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
     """Walk the part of every ray inside the storage slab ``part`` owns.
+
+    ``tabx[g - wlo[0]]`` (and y, z) is the share of axis index ``g`` in the linear storage
+    index (ring position, brick, place in the brick), so a step is one table load.
 
     One function on purpose: numba adds reference counting around calls that take arrays, and
     that per-voxel cost would dominate the walk.
     """
-    mx = dims[0]
-    my = dims[1]
-    mz = dims[2]
-    byn = my // BRICK
-    bzn = mz // BRICK
-    sy_stride = bzn * 64
-    sx_stride = byn * sy_stride
     # a ray can need at most one new cold block per brick it visits
-    worst = mx // BRICK + byn + bzn + 4
+    worst = (tabx.shape[0] + taby.shape[0] + tabz.shape[0]) // BRICK + 6
     cap = pool.shape[1]
+    wx0 = wlo[0]
+    wy0 = wlo[1]
+    wz0 = wlo[2]
     nh = counters[part, 0]
     nv = counters[part, 1]
     pos = resume[part]
@@ -375,44 +374,45 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
             continue
         startx = cx
         starty = cy
-        # step direction, the cell whose up/down neighbour is outside the box, and the next
-        # event's parameter (inf once the axis has reached the return's cell)
+        # Per axis: step direction, the plane offset of the next event (1 up, 0 down), the last
+        # cell of the walk in this box (the return's cell or the box's face cell), and the next
+        # event's parameter (inf once the axis has reached the return's cell).
         if g1x > g0x:
             stx = 1
-            ex = bhi[0] - 1
-            tx = (cx + 1 - ox) / dx if cx != g1x else _INF
+            upx = 1
+            lastx = min(g1x, bhi[0] - 1)
         else:
             stx = -1
-            ex = blo[0]
-            tx = (cx - ox) / dx if cx != g1x else _INF
+            upx = 0
+            lastx = max(g1x, blo[0])
         if g1y > g0y:
             sty = 1
-            ey = bhy - 1
-            ty = (cy + 1 - oy) / dy if cy != g1y else _INF
+            upy = 1
+            lasty = min(g1y, bhy - 1)
         else:
             sty = -1
-            ey = bly
-            ty = (cy - oy) / dy if cy != g1y else _INF
+            upy = 0
+            lasty = max(g1y, bly)
         if g1z > g0z:
             stz = 1
-            ez = bhi[2] - 1
-            tz = (cz + 1 - oz) / dz if cz != g1z else _INF
+            upz = 1
+            lastz = min(g1z, bhi[2] - 1)
         else:
             stz = -1
-            ez = blo[2]
-            tz = (cz - oz) / dz if cz != g1z else _INF
-        # storage coordinates (ring buffer) and their share of the linear brick index
-        sx = cx % mx
-        sy = cy % my
-        sz = cz % mz
-        offx = (sx >> 2) * sx_stride + (sx & 3) * 16
-        offy = (sy >> 2) * sy_stride + (sy & 3) * 4
-        offz = (sz >> 2) * 64 + (sz & 3)
+            upz = 0
+            lastz = max(g1z, blo[2])
+        tx = (cx + upx - ox) / dx if cx != g1x else _INF
+        ty = (cy + upy - oy) / dy if cy != g1y else _INF
+        tz = (cz + upz - oz) / dz if cz != g1z else _INF
+        offx = tabx[cx - wx0]
+        offy = taby[cy - wy0]
+        offz = tabz[cz - wz0]
         reached = False  # the walk arrived at the return's cell (inside this box)
         while True:
             idx = offx + offy + offz
             # next event: the smallest (t, class); a strict minimum is the common case and
-            # each axis gets its own block so that one unpredictable branch decides it
+            # each axis gets its own block so that one unpredictable branch decides it. An
+            # axis at its last cell is either done (t = inf, never chosen) or about to leave.
             if tx < ty and tx < tz:
                 v = passes[idx]
                 if v != 255:
@@ -420,16 +420,13 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 else:
                     _carry(passes, 64, idx, cdir, pool, used, part)
                 nv += 1
-                if cx == ex:
+                if cx == lastx:
                     break
                 cx += stx
-                sx += stx
-                if sx == mx:
-                    sx = 0
-                elif sx < 0:
-                    sx = mx - 1
-                offx = (sx >> 2) * sx_stride + (sx & 3) * 16
-                tx = ((cx + 1 if stx > 0 else cx) - ox) / dx if cx != g1x else _INF
+                offx = tabx[cx - wx0]
+                tx = (cx + upx - ox) / dx
+                if cx == g1x:
+                    tx = _INF
             elif ty < tz and ty < tx:
                 v = passes[idx]
                 if v != 255:
@@ -437,16 +434,13 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 else:
                     _carry(passes, 64, idx, cdir, pool, used, part)
                 nv += 1
-                if cy == ey:
+                if cy == lasty:
                     break
                 cy += sty
-                sy += sty
-                if sy == my:
-                    sy = 0
-                elif sy < 0:
-                    sy = my - 1
-                offy = (sy >> 2) * sy_stride + (sy & 3) * 4
-                ty = ((cy + 1 if sty > 0 else cy) - oy) / dy if cy != g1y else _INF
+                offy = taby[cy - wy0]
+                ty = (cy + upy - oy) / dy
+                if cy == g1y:
+                    ty = _INF
             elif tz < tx and tz < ty:
                 v = passes[idx]
                 if v != 255:
@@ -454,16 +448,13 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 else:
                     _carry(passes, 64, idx, cdir, pool, used, part)
                 nv += 1
-                if cz == ez:
+                if cz == lastz:
                     break
                 cz += stz
-                sz += stz
-                if sz == mz:
-                    sz = 0
-                elif sz < 0:
-                    sz = mz - 1
-                offz = (sz >> 2) * 64 + (sz & 3)
-                tz = ((cz + 1 if stz > 0 else cz) - oz) / dz if cz != g1z else _INF
+                offz = tabz[cz - wz0]
+                tz = (cz + upz - oz) / dz
+                if cz == g1z:
+                    tz = _INF
             else:
                 # a tie (edge or corner) or the end of the ray
                 tm = min(tx, min(ty, tz))
@@ -484,23 +475,20 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
                 else:
                     _carry(passes, 64, idx, cdir, pool, used, part)
                 nv += 1
-                if (mvx and cx == ex) or (mvy and cy == ey) or (mvz and cz == ez):
+                if (mvx and cx == lastx) or (mvy and cy == lasty) or (mvz and cz == lastz):
                     break  # the next cell is outside the box
                 if mvx:
                     cx += stx
-                    sx = (sx + stx) % mx
-                    offx = (sx >> 2) * sx_stride + (sx & 3) * 16
-                    tx = ((cx + 1 if stx > 0 else cx) - ox) / dx if cx != g1x else _INF
+                    offx = tabx[cx - wx0]
+                    tx = (cx + upx - ox) / dx if cx != g1x else _INF
                 if mvy:
                     cy += sty
-                    sy = (sy + sty) % my
-                    offy = (sy >> 2) * sy_stride + (sy & 3) * 4
-                    ty = ((cy + 1 if sty > 0 else cy) - oy) / dy if cy != g1y else _INF
+                    offy = taby[cy - wy0]
+                    ty = (cy + upy - oy) / dy if cy != g1y else _INF
                 if mvz:
                     cz += stz
-                    sz = (sz + stz) % mz
-                    offz = (sz >> 2) * 64 + (sz & 3)
-                    tz = ((cz + 1 if stz > 0 else cz) - oz) / dz if cz != g1z else _INF
+                    offz = tabz[cz - wz0]
+                    tz = (cz + upz - oz) / dz if cz != g1z else _INF
         if reached:
             idx = offx + offy + offz
             v = hits[idx]
@@ -526,14 +514,14 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
 
 
 @nb.njit(cache=True, parallel=True)
-def _trace_all(uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
+def _trace_all(uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits, passes,
                cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
     for part in nb.prange(yint.shape[0]):
-        _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, dims, hits, passes,
-                    cdir, pool, used, resume, dirty, dlo, tile_vox, counters)
+        _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
+                    passes, cdir, pool, used, resume, dirty, dlo, tile_vox, counters)
 
 
-def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, dims, hits, passes, cdir, pool,
+def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes, cdir, pool,
                used, resume, dirty, dirty_lo, tile_vox, counters,
                parallel: bool = True) -> None:
     """Walk the prepared rays into the storage arrays (see :class:`DensityMap`).
@@ -545,8 +533,9 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, dims, hits, passes, 
     if nvalid == 0:
         resume[:] = 0
         return
-    args = (uo, up, order, nvalid, box_lo, box_hi, yint, dims, hits, passes, cdir, pool,
-            used, resume, dirty, dirty_lo, tile_vox, counters)
+    args = (uo, up, order, nvalid, box_lo, box_hi, yint, box_lo, tables[0], tables[1],
+            tables[2], hits, passes, cdir, pool, used, resume, dirty, dirty_lo, tile_vox,
+            counters)
     if parallel and nb.get_num_threads() > 1:
         _trace_all(*args)
     else:
