@@ -74,8 +74,8 @@ def test_height_and_column_features_of_a_box():
     top = _at(f, 0, (16, 16, 22))  # box top at 0.312 m: voxel [0.30, 0.35)
     ground = _at(f, 0, (8, 8, 16))  # ground 0.4 m from the box
     edge = _at(f, 0, (12, 16, 22))  # top of the box's side wall
-    assert top['height'] == pytest.approx(0.325)
-    assert ground['height'] == pytest.approx(0.025)
+    assert top['height'] == pytest.approx(0.3)  # heights count from the ground voxel (16)
+    assert ground['height'] == pytest.approx(0.0)
     assert top['column_height_range'] == pytest.approx(0.0)
     assert ground['column_height_range'] == pytest.approx(0.0)
     # Columns within two voxels of the wall see both the ground and the top.

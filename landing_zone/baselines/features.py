@@ -8,8 +8,9 @@ Each occupied voxel of a tile's core gets 16 features, in five groups:
 - directional: the angle to vertical of the normal (eigenvector of ``l3``) and of the principal
   direction (of ``l1``), and the spread (standard deviation) of the normal angle over the
   neighbourhood;
-- height: height above the tile's ground estimate (the cube is centred in z on it), and the
-  standard deviation and the range of the occupied heights in the surrounding columns;
+- height: height above the tile's ground estimate (the centre of voxel S // 2 in z, where
+  :mod:`landing_zone.tiles` puts the ground voxel), and the standard deviation and the range
+  of the occupied heights in the surrounding columns;
 - more shape: omnivariance, eigenentropy, and the fill of the neighbourhood (occupied
   fraction);
 - density statistics, standing in for the range-variance features of the literature (the
@@ -161,8 +162,8 @@ def _chunk_features(vol: np.ndarray, g: VolumeGeometry, radius: int,
     fill = n / width ** 3
 
     # -- heights: above the ground estimate, and over the surrounding columns --
-    zs = g.centres(nz)
-    height = zs[k]
+    # tiles.py puts the ground voxel at z index S // 2: heights count from its centre.
+    height = (k - nz // 2) * g.voxel_size
     kk = np.arange(nz, dtype=np.float32)
     count = occ.sum(axis=3)
     cw = 2 * column_radius + 1
