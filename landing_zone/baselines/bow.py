@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 from sklearn.cluster import MiniBatchKMeans
+from sklearn.ensemble import RandomForestClassifier
 
-from landing_zone.baselines.features import voxel_features
+from landing_zone.baselines.features import VoxelFeatures, voxel_features
 from landing_zone.baselines.raw_forest import make_forest, safe_probability
 from landing_zone.baselines.volumes import VolumeGeometry, as_labels, as_volumes
 from landing_zone.errors import ConfigError, DatasetError, ModelError
@@ -76,8 +77,9 @@ class BowForest:
         self.column_radius = int(column_radius)
         self.chunk = int(chunk)
         self.words: np.ndarray | None = None
-        self.forest = None
-        self._mean = self._scale = None
+        self.forest: RandomForestClassifier | None = None
+        self._mean: np.ndarray | None = None
+        self._scale: np.ndarray | None = None
         self._sigma2 = 1.0
 
     # -- fitting ----------------------------------------------------------------------------
@@ -175,7 +177,7 @@ class BowForest:
 
     # -- helpers ----------------------------------------------------------------------------
 
-    def _features(self, vol: np.ndarray) -> Any:
+    def _features(self, vol: np.ndarray) -> VoxelFeatures:
         return voxel_features(vol, self.geometry, radius=self.radius,
                               column_radius=self.column_radius, chunk=self.chunk)
 
