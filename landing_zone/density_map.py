@@ -363,12 +363,15 @@ class DensityMap:
         while True:
             trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
                        self._passes, self._cdir, self._pool, self._used, resume,
-                       self._dirty, self._dirty_lo, self.tile_vox, counters,
+                       self._dirty_parts, self._dirty_lo, self.tile_vox, counters,
                        parallel=self.parallel)
             if np.all(resume >= 2 * nvalid):
                 break
             # a part stopped before a ray that might not find a free cold block: grow, resume
             self._grow_pool()
+        kx, ky = self._dirty.shape
+        self._dirty |= np.bitwise_or.reduce(self._dirty_parts[:, :kx], axis=0)
+        self._dirty_parts[:] = 0
         stats.voxels = int(counters[:, 1].sum())
         return stats
 
@@ -465,6 +468,7 @@ class DensityMap:
         self._dirty_lo = self.lo[:2] // tv
         klast = (self.hi[:2] - 1) // tv
         self._dirty = np.zeros(tuple(int(v) for v in klast - self._dirty_lo + 1), np.uint8)
+        self._dirty_parts = _part_records(self._dirty.shape)
         if len(old_dirty):
             rel = old_dirty - self._dirty_lo
             keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
@@ -504,6 +508,7 @@ class DensityMap:
         klast = (self.lo[:2] + self._n[:2] - 1) // tile_vox
         self._dirty = np.full(tuple(int(v) for v in klast - self._dirty_lo + 1),
                               0 if first else 1, np.uint8)
+        self._dirty_parts = _part_records(self._dirty.shape)
 
     def _dirty_tiles(self) -> np.ndarray:
         idx = np.argwhere(self._dirty != 0).astype(np.int64)
@@ -594,6 +599,12 @@ class DensityMap:
         return (f'DensityMap(shape={self.shape}, voxel_size={self.voxel_size}, '
                 f'lo={self.lo.tolist()}, box=[{lo_m.round(3).tolist()}, '
                 f'{hi_m.round(3).tolist()}] m, {self.nbytes / 1e6:.1f} MB)')
+
+
+def _part_records(shape: tuple[int, int]) -> np.ndarray:
+    """One dirty-tile record per part, 64 bytes apart so the threads never share a line."""
+    pad = 64 // max(shape[1], 1) + 1
+    return np.zeros((PARTS, shape[0] + pad, shape[1]), np.uint8)
 
 
 def _offset_tables(lo: np.ndarray, n: np.ndarray, dims: np.ndarray

@@ -503,9 +503,11 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
         kx1 = max(startx, cx) // tile_vox - dlo[0]
         ky0 = min(starty, cy) // tile_vox - dlo[1]
         ky1 = max(starty, cy) // tile_vox - dlo[1]
+        # (each part has its own record: shared lines would bounce between the cores)
         for a in range(kx0, kx1 + 1):
             for b in range(ky0, ky1 + 1):
-                dirty[a, b] = 1
+                if dirty[part, a, b] == 0:
+                    dirty[part, a, b] = 1
     if pos >= total:
         pos = total
     resume[part] = pos
@@ -536,8 +538,27 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
     args = (uo, up, order, nvalid, box_lo, box_hi, yint, box_lo, tables[0], tables[1],
             tables[2], hits, passes, cdir, pool, used, resume, dirty, dirty_lo, tile_vox,
             counters)
-    if parallel and nb.get_num_threads() > 1:
+    nparts = yint.shape[0]
+    if parallel and nb.get_num_threads() > 1 and THREADING == 'prange':
         _trace_all(*args)
+    elif parallel and nb.get_num_threads() > 1:
+        pool_ = _executor()
+        futures = [pool_.submit(_trace_part, part, *args) for part in range(1, nparts)]
+        _trace_part(0, *args)
+        for f in futures:
+            f.result()
     else:
-        for part in range(yint.shape[0]):
+        for part in range(nparts):
             _trace_part(part, *args)
+
+
+THREADING = 'threads'
+_EXECUTOR = None
+
+
+def _executor():
+    global _EXECUTOR
+    if _EXECUTOR is None:
+        from concurrent.futures import ThreadPoolExecutor
+        _EXECUTOR = ThreadPoolExecutor(max_workers=PARTS - 1, thread_name_prefix='raytrace')
+    return _EXECUTOR
