@@ -1,0 +1,125 @@
+"""Landing sites on hand-made probability grids."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from landing_zone.config import SiteConfig
+from landing_zone.errors import ConfigError
+from landing_zone.sites import find_sites, footprint_mask, site_probabilities
+
+
+def test_footprint_mask_counts_tiles_the_disc_overlaps():
+    # radius 1.5 on 1 m tiles: the 3 x 3 block (the disc only touches the tiles 2 away)
+    assert footprint_mask(1.5, 1.0).shape == (3, 3)
+    assert footprint_mask(1.5, 1.0).all()
+    # radius 0.5: only the centre tile (its neighbours are touched at their edges)
+    assert footprint_mask(0.5, 1.0).tolist() == [[True]]
+    # radius 1.6: the 5 x 5 block but its corners (nearest corner point 2.12 m away; the
+    # tile two over and one up is 1.58 m away)
+    m = footprint_mask(1.6, 1.0)
+    assert m.shape == (5, 5)
+    assert m.sum() == 25 - 4
+    assert not m[0, 0] and m[0, 1] and m[2, 0]
+    # every tile under the mask overlaps the disc (brute force on a fine grid)
+    r = 2.3
+    m = footprint_mask(r, 1.0)
+    h = m.shape[0] // 2
+    xs = np.linspace(-h - 0.5, h + 0.5, 401)
+    gx, gy = np.meshgrid(xs, xs, indexing='ij')
+    inside = gx ** 2 + gy ** 2 < r * r
+    ti = np.clip(np.floor(gx + 0.5).astype(int) + h, 0, 2 * h)
+    tj = np.clip(np.floor(gy + 0.5).astype(int) + h, 0, 2 * h)
+    hit = np.zeros_like(m)
+    hit[ti[inside], tj[inside]] = True
+    assert np.array_equal(hit, m)
+
+
+def test_footprint_probability_is_the_product_under_the_disc():
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0.6, 1.0, (7, 7))
+    c = rng.uniform(0.2, 1.0, (7, 7))
+    ps, cs = site_probabilities(p, c, 1.5, 1.0)
+    assert ps[3, 3] == pytest.approx(np.prod(p[2:5, 2:5]))
+    assert cs[3, 3] == pytest.approx(c[2:5, 2:5].min())
+    # footprints reaching past the grid are disqualified
+    assert np.isnan(ps[0, 3]) and np.isnan(ps[6, 6])
+    assert np.isfinite(ps[1:6, 1:6]).all()
+
+
+def test_best_site_is_the_clear_patch():
+    p = np.full((12, 10), 0.7)
+    p[6:9, 2:5] = 0.99  # a clear 3 x 3 patch centred on cell (7, 3)
+    conf = np.ones_like(p)
+    sites = find_sites(p, conf, origin=(-6, -5), config=SiteConfig(footprint_radius=1.5,
+                       top_k=3, min_p_safe=0.0))
+    best = sites[0]
+    assert best.index == (7 - 6, 3 - 5)
+    assert (best.x, best.y) == (1.5, -1.5)
+    assert best.p_safe == pytest.approx(0.99 ** 9)
+    assert sites == sorted(sites, key=lambda s: -s.p_safe)
+
+
+def test_unknown_tile_disqualifies_its_footprints():
+    p = np.full((9, 9), 0.95)
+    p[4, 4] = np.nan
+    conf = np.ones_like(p)
+    ps, _ = site_probabilities(p, conf, 1.5, 1.0)
+    assert np.isnan(ps[3:6, 3:6]).all()
+    assert np.isfinite(ps[1, 1])
+    sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, top_k=50, min_p_safe=0.0),
+                       min_separation=0.0)
+    for s in sites:
+        assert max(abs(s.index[0] - 4), abs(s.index[1] - 4)) >= 2
+    assert len(sites) == 7 * 7 - 9
+
+
+def test_an_unknown_patch_is_never_preferred_to_a_poor_known_one():
+    p = np.full((9, 9), np.nan)
+    p[1:4, 1:4] = 0.6
+    conf = np.ones_like(p)
+    sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, top_k=5, min_p_safe=0.0))
+    assert [s.index for s in sites] == [(2, 2)]
+    assert sites[0].p_safe == pytest.approx(0.6 ** 9)
+
+
+def test_non_maximum_suppression_keeps_sites_apart():
+    p = np.full((20, 20), 0.9)
+    p[10, 10] = 0.999
+    conf = np.ones_like(p)
+    cfg = SiteConfig(footprint_radius=1.5, top_k=5, min_p_safe=0.0)
+    sites = find_sites(p, conf, origin=(0, 0), config=cfg)
+    assert len(sites) == 5
+    xy = np.array([[s.x, s.y] for s in sites])
+    d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+    assert d[np.triu_indices(5, 1)].min() >= 3.0
+    # the best ones contain the excellent tile under their footprints
+    assert max(abs(sites[0].index[0] - 10), abs(sites[0].index[1] - 10)) <= 1
+
+
+def test_min_p_safe_and_zero_probability():
+    p = np.full((6, 6), 0.9)
+    p[2, 2] = 0.0
+    conf = np.full_like(p, 0.5)
+    ps, cs = site_probabilities(p, conf, 1.5, 1.0)
+    assert ps[2, 2] == 0.0 and ps[3, 3] == 0.0
+    assert cs[4, 4] == pytest.approx(0.5)
+    sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, 10, min_p_safe=0.5),
+                       min_separation=0.0)
+    assert sites == []  # every footprint inside the grid covers the unsafe tile
+    sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, 10, min_p_safe=0.0),
+                       ground_z=np.full_like(p, 0.25))
+    assert all(s.z == 0.25 for s in sites)
+    assert sites[-1].p_safe == 0.0
+
+
+def test_bad_arguments_raise_config_errors():
+    with pytest.raises(ConfigError, match='footprint radius'):
+        footprint_mask(0.0, 1.0)
+    with pytest.raises(ConfigError, match='one shape'):
+        site_probabilities(np.zeros((3, 3)), np.zeros((3, 4)), 1.0, 1.0)
+    with pytest.raises(ConfigError, match='landing_sites.top_k'):
+        find_sites(np.zeros((3, 3)), np.zeros((3, 3)), (0, 0), SiteConfig(top_k=-1))
+    assert find_sites(np.zeros((0, 0)), np.zeros((0, 0)), (0, 0)) == []
+    # a footprint within one tile is judged on that tile alone
+    assert site_probabilities(np.full((1, 1), 0.5), np.ones((1, 1)), 0.4, 1.0)[0][0, 0] == 0.5
