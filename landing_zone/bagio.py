@@ -1,0 +1,445 @@
+"""Read any ROS bag in stamp order and write ROS 2 bags, with rosbags (no ROS installation).
+
+Reading (:func:`read_messages`, :func:`bag_topics`) accepts
+
+* a ROS 2 bag directory (``metadata.yaml`` plus ``.mcap`` or ``.db3`` files), read by
+  ``rosbags.highlevel.AnyReader``;
+* a ``.db3`` file inside such a directory (the directory is read);
+* a ``.mcap`` file, by itself (what :class:`BagWriter` writes for a ``*.mcap`` path, the file
+  inside a ``ros2 bag record -s mcap`` directory, Foxglove recordings, ...), read with the
+  ``mcap`` package and deserialized with rosbags from the schemas embedded in the file:
+  rosbags 0.11's reader needs the ``metadata.yaml`` of a bag directory, which a lone file lacks;
+* a ROS 1 ``.bag`` file, whose types AnyReader maps to their ROS 2 names
+  (``sensor_msgs/msg/PointCloud2``, headers with ``builtin_interfaces/msg/Time`` stamps).
+
+Messages come out in the bag's log-time order, deserialized into rosbags dataclasses whose field
+names are rclpy's, so ``msg_adapters`` decodes them like live messages.
+
+Writing (:class:`BagWriter`) produces a ROS 2 bag with MCAP storage, version 9. A path ending in
+``.mcap`` becomes that one self-describing file (schemas, channels and the rosbag2 metadata
+record live inside it; ``ros2 bag play SITE.mcap`` and :func:`read_messages` read it); any other
+path becomes a rosbag2 directory with ``metadata.yaml``, in MCAP or SQLite3 storage.
+
+rosbags and mcap are imported inside the functions, so importing this module costs nothing.
+Every failure is a :class:`~landing_zone.errors.BagError` with a one-line message.
+"""
+from __future__ import annotations
+
+import functools
+import os
+import shutil
+import tempfile
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+from landing_zone.errors import BagError
+
+if TYPE_CHECKING:
+    from types import TracebackType
+
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+__all__ = [
+    'BagMessage',
+    'typestore',
+    'read_messages',
+    'bag_topics',
+    'BagWriter',
+]
+
+
+class BagMessage(NamedTuple):
+    """One message of a bag."""
+
+    topic: str
+    stamp_ns: int  # the bag's log (receive) time; the header stamp may differ
+    msgtype: str  # ROS 2 type name, 'sensor_msgs/msg/PointCloud2'
+    msg: Any  # rosbags dataclass with rclpy's field names
+
+
+@functools.lru_cache(maxsize=1)
+def typestore() -> Typestore:
+    """The rosbags typestore of ROS 2 Jazzy (messages this project writes are built from it)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _describe(err: BaseException) -> str:
+    """One line naming a foreign exception."""
+    text = ' '.join(str(err).split()) or type(err).__name__
+    return text if len(text) <= 200 else text[:197] + '...'
+
+
+def _kind(path: Path) -> tuple[str, Path]:
+    """How to read a bag path: ``('any', path)`` for AnyReader or ``('mcap', file)``."""
+    if not path.exists():
+        raise BagError(f'bag not found: {path}')
+    if path.is_dir():
+        if not (path / 'metadata.yaml').exists():
+            raise BagError(f'{path} is a directory without metadata.yaml, not a ROS 2 bag')
+        return 'any', path
+    if path.suffix == '.bag':
+        return 'any', path
+    if path.suffix == '.mcap':
+        return 'mcap', path
+    if path.suffix == '.db3' and (path.parent / 'metadata.yaml').exists():
+        return 'any', path.parent
+    if path.suffix == '.db3':
+        raise BagError(f'{path} is a .db3 file without the metadata.yaml of its bag directory; '
+                       'pass the bag directory')
+    raise BagError(f'{path} is not a bag (expected a ROS 2 bag directory, a .mcap, .db3 or a '
+                   'ROS 1 .bag file)')
+
+
+def _check_topics(path: Path, available: dict[str, str],
+                  topics: Iterable[str] | None) -> set[str] | None:
+    """The requested topics as a set, after checking that the bag has every one."""
+    if topics is None:
+        return None
+    wanted = {topics} if isinstance(topics, str) else set(topics)
+    missing = sorted(wanted - set(available))
+    if missing:
+        raise BagError(f'{path} lacks topic(s) {", ".join(missing)} (it has '
+                       f'{", ".join(sorted(available)) or "no topics"})')
+    return wanted
+
+
+def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
+    """The topics of a bag and their message types.
+
+    Args:
+        path: Bag directory, ``.mcap`` / ``.db3`` file or ROS 1 ``.bag`` file.
+
+    Returns:
+        ``{topic: msgtype}`` with ROS 2 type names.
+
+    Raises:
+        BagError: The bag is missing, not a bag, or unreadable.
+    """
+    path = Path(path)
+    kind, target = _kind(path)
+    if kind == 'mcap':
+        with _McapSource(target) as source:
+            return source.topics()
+    from rosbags.highlevel import AnyReader
+    try:
+        with AnyReader([target], default_typestore=typestore()) as reader:
+            return {topic: info.msgtype or '' for topic, info in reader.topics.items()}
+    except BagError:
+        raise
+    except Exception as err:  # any rosbags/sqlite/yaml failure means the same: unreadable bag
+        raise BagError(f'cannot read bag {path}: {_describe(err)}') from err
+
+
+def read_messages(path: str | os.PathLike[str],
+                  topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
+    """Iterate over the messages of a bag in log-time order.
+
+    Args:
+        path: Bag directory, ``.mcap`` / ``.db3`` file or ROS 1 ``.bag`` file.
+        topics: Only these topics (every one must be in the bag); ``None`` for all.
+
+    Yields:
+        :class:`BagMessage` per message, deserialized.
+
+    Raises:
+        BagError: The bag is missing, not a bag, corrupt (also when found mid-way), or lacks a
+            requested topic. Raised on the first ``next()``, as the function is a generator.
+    """
+    path = Path(path)
+    kind, target = _kind(path)
+    if kind == 'mcap':
+        with _McapSource(target) as source:
+            wanted = _check_topics(path, source.topics(), topics)
+            yield from source.messages(wanted)
+        return
+    yield from _read_any(path, target, topics)
+
+
+def _read_any(path: Path, target: Path, topics: Iterable[str] | None) -> Iterator[BagMessage]:
+    """Messages of a bag AnyReader can open (ROS 2 directory, ROS 1 file)."""
+    from rosbags.highlevel import AnyReader
+    try:
+        reader = AnyReader([target], default_typestore=typestore())
+        reader.open()
+    except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors here
+        raise BagError(f'cannot open bag {path}: {_describe(err)}') from err
+    try:
+        available = {topic: info.msgtype or '' for topic, info in reader.topics.items()}
+        wanted = _check_topics(path, available, topics)
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        stream = reader.messages(connections=connections) if connections else iter(())
+        while True:
+            try:
+                connection, stamp, raw = next(stream)
+                msg = reader.deserialize(raw, connection.msgtype)
+            except StopIteration:
+                return
+            except Exception as err:  # a corrupt record deep in the bag: any error of the libs
+                raise BagError(f'corrupt bag {path}: {_describe(err)}') from err
+            yield BagMessage(connection.topic, int(stamp), connection.msgtype, msg)
+    finally:
+        reader.close()
+
+
+class _McapSource:
+    """A lone ``.mcap`` file: the mcap package reads records, rosbags deserializes CDR."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._file: Any = None
+        self._reader: Any = None
+        self._store: Typestore | None = None
+        self._registered: set[int] = set()
+
+    def __enter__(self) -> _McapSource:
+        from mcap.reader import make_reader
+        try:
+            self._file = self.path.open('rb')
+            self._reader = make_reader(self._file)
+        except Exception as err:  # OSError, mcap's InvalidMagic / EndOfFile, struct errors
+            self.close()
+            raise BagError(f'cannot open bag {self.path}: {_describe(err)}') from err
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def topics(self) -> dict[str, str]:
+        """``{topic: schema name}`` from the summary, or from a scan when there is none."""
+        try:
+            summary = self._reader.get_summary()
+            if summary is not None:
+                return {c.topic: (summary.schemas[c.schema_id].name if c.schema_id else '')
+                        for c in summary.channels.values()}
+            from mcap.records import Channel, Schema
+            from mcap.stream_reader import StreamReader
+            self._file.seek(0)
+            schemas: dict[int, str] = {}
+            found: dict[str, str] = {}
+            for record in StreamReader(self._file).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel):
+                    found[record.topic] = schemas.get(record.schema_id, '')
+            return found
+        except Exception as err:  # mcap raises McapError, KeyError, struct.error on corruption
+            raise BagError(f'cannot read bag {self.path}: {_describe(err)}') from err
+
+    def _register(self, schema: Any) -> None:
+        """Add the types of a schema (with its embedded dependencies) to the typestore."""
+        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+        if self._store is None:
+            self._store = get_typestore(Stores.EMPTY)
+        text = schema.data.decode()
+        if schema.encoding == 'ros2msg':
+            types = get_types_from_msg(text, schema.name)
+        elif schema.encoding == 'ros2idl':
+            # rosbag2 concatenates the IDL of every dependency behind '=' * 80 separators.
+            sep = '=' * 80 + '\n'
+            types = {}
+            for part in (text.split(sep)[1:] if text.startswith(sep + 'IDL: ') else [text]):
+                types.update(get_types_from_idl(part.split('\n', 1)[1] if
+                                                part.startswith('IDL: ') else part))
+        else:
+            raise BagError(f'{self.path}: schema {schema.name} has encoding {schema.encoding!r}; '
+                           'only ros2msg and ros2idl are supported')
+        known = set(self._store.fielddefs)
+        self._store.register({k: v for k, v in types.items() if k not in known})
+        self._registered.add(schema.id)
+
+    def messages(self, wanted: set[str] | None) -> Iterator[BagMessage]:
+        """Deserialized messages in log-time order."""
+        jazzy = typestore()
+        stream = self._reader.iter_messages(topics=sorted(wanted) if wanted else None,
+                                            log_time_order=True)
+        if wanted is not None and not wanted:
+            return
+        while True:
+            try:
+                schema, channel, message = next(stream)
+                if channel.message_encoding != 'cdr':
+                    raise BagError(f'{self.path}: topic {channel.topic} has message encoding '
+                                   f'{channel.message_encoding!r}; only cdr is supported')
+                if schema is None:
+                    # No schema in the file: rosbag2 readers fall back to the installed types.
+                    store, msgtype = jazzy, _schemaless_type(self.path, channel)
+                else:
+                    if schema.id not in self._registered:
+                        self._register(schema)
+                    assert self._store is not None
+                    store, msgtype = self._store, schema.name
+                msg = store.deserialize_cdr(message.data, msgtype)
+            except StopIteration:
+                return
+            except BagError:
+                raise
+            except Exception as err:  # corrupt chunk, schema or CDR payload
+                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
+            yield BagMessage(channel.topic, int(message.log_time), msgtype, msg)
+
+
+def _schemaless_type(path: Path, channel: Any) -> str:
+    """The type of a channel without schema, from its rosbag2 metadata if it has one."""
+    msgtype = channel.metadata.get('type', '') if hasattr(channel, 'metadata') else ''
+    if msgtype not in typestore().types:
+        raise BagError(f'{path}: topic {channel.topic} has no schema and no known type')
+    return msgtype
+
+
+class BagWriter:
+    """Write a ROS 2 bag (MCAP storage by default) from rosbags typestore messages.
+
+    A path ending in ``.mcap`` (with ``storage='mcap'``) gives that single file: rosbags writes
+    the bag directory in a temporary folder beside it and the ``.mcap`` file is moved into place
+    on a clean close (its embedded rosbag2 metadata makes it self-describing). Any other path
+    gives a rosbag2 directory there. An exception inside the ``with`` block leaves nothing
+    behind.
+
+    Example::
+
+        with BagWriter('site.mcap') as bag:
+            bag.add_topic('/lidar/points', 'sensor_msgs/msg/PointCloud2')
+            bag.write('/lidar/points', stamp_ns, cloud)
+
+    Args:
+        path: Output path; must not exist unless ``overwrite``.
+        storage: ``'mcap'`` or ``'sqlite3'``.
+        overwrite: Replace an existing file or bag directory at ``path``.
+        types: Typestore whose definitions are written (default: :func:`typestore`).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], storage: str = 'mcap', *,
+                 overwrite: bool = False, types: Typestore | None = None):
+        self.path = Path(path)
+        if storage not in ('mcap', 'sqlite3'):
+            raise BagError(f"bag storage must be 'mcap' or 'sqlite3', got {storage!r}")
+        self.single_file = self.path.suffix == '.mcap'
+        if self.single_file and storage != 'mcap':
+            raise BagError(f'{self.path}: a .mcap path needs storage mcap, not {storage}')
+        self.storage = storage
+        self.overwrite = overwrite
+        self.types = types if types is not None else typestore()
+        self._writer: Any = None
+        self._tmpdir: Path | None = None
+        self._connections: dict[str, Connection] = {}
+
+    def __enter__(self) -> BagWriter:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def open(self) -> None:
+        """Start writing (the context manager calls this)."""
+        from rosbags.rosbag2 import StoragePlugin, Writer
+        if self._writer is not None:
+            raise BagError(f'bag {self.path} is already open')
+        if self.path.exists() or self.path.is_symlink():
+            if not self.overwrite:
+                raise BagError(f'{self.path} exists already (not overwriting)')
+        if not self.path.parent.is_dir():
+            raise BagError(f'cannot write bag {self.path}: {self.path.parent} is not a directory')
+        plugin = StoragePlugin.MCAP if self.storage == 'mcap' else StoragePlugin.SQLITE3
+        target = self.path
+        try:
+            if self.single_file:
+                # rosbags names the storage file after its directory: <stem>/<stem>.mcap, so the
+                # file's embedded metadata already names the final file.
+                self._tmpdir = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.',
+                                                     dir=self.path.parent))
+                target = self._tmpdir / self.path.stem
+            elif self.overwrite and self.path.exists():
+                self._tmpdir = Path(tempfile.mkdtemp(prefix=f'.{self.path.name}.',
+                                                     dir=self.path.parent))
+                target = self._tmpdir / self.path.name
+            self._writer = Writer(target, version=9, storage_plugin=plugin)
+            self._writer.open()
+        except Exception as err:
+            self._cleanup()
+            raise BagError(f'cannot write bag {self.path}: {_describe(err)}') from err
+
+    def add_topic(self, topic: str, msgtype: str) -> None:
+        """Declare a topic and its ROS 2 message type (``'sensor_msgs/msg/PointCloud2'``).
+
+        Raises:
+            BagError: The bag is not open, the topic exists, or the type is unknown.
+        """
+        if self._writer is None:
+            raise BagError(f'bag {self.path} is not open')
+        if topic in self._connections:
+            raise BagError(f'topic {topic} was added twice to {self.path}')
+        if msgtype not in self.types.types:
+            raise BagError(f'message type {msgtype} is unknown to the typestore')
+        try:
+            self._connections[topic] = self._writer.add_connection(topic, msgtype,
+                                                                   typestore=self.types)
+        except Exception as err:
+            raise BagError(f'cannot add topic {topic} to {self.path}: {_describe(err)}') from err
+
+    def write(self, topic: str, stamp_ns: int, msg: Any) -> None:
+        """Serialize a message (rosbags dataclass) to CDR and write it at a log time.
+
+        Raises:
+            BagError: Unknown topic, a message of another type, or unserializable content.
+        """
+        connection = self._connections.get(topic)
+        if connection is None or self._writer is None:
+            raise BagError(f'topic {topic} was not added to {self.path}')
+        msgtype = getattr(msg, '__msgtype__', None)
+        if msgtype is not None and msgtype != connection.msgtype:
+            raise BagError(f'topic {topic} carries {connection.msgtype}, got a {msgtype}')
+        try:
+            data = self.types.serialize_cdr(msg, connection.msgtype)
+            self._writer.write(connection, int(stamp_ns), data)
+        except Exception as err:  # rosbags' SerdeError, struct errors on out-of-range values
+            raise BagError(f'cannot write a {connection.msgtype} to {topic}: '
+                           f'{_describe(err)}') from err
+
+    def close(self) -> None:
+        """Finish the bag and move it into place."""
+        if self._writer is None:
+            return
+        writer, self._writer = self._writer, None
+        try:
+            writer.close()
+            if self._tmpdir is not None:
+                produced = Path(writer.path)
+                source = produced / f'{produced.name}.mcap' if self.single_file else produced
+                if self.path.is_dir() and not self.path.is_symlink():
+                    shutil.rmtree(self.path)
+                os.replace(source, self.path)
+        except Exception as err:
+            raise BagError(f'cannot finish bag {self.path}: {_describe(err)}') from err
+        finally:
+            self._cleanup()
+
+    def abort(self) -> None:
+        """Stop writing and remove what was written."""
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.abort()
+            except Exception:  # already failing: removing the output is what matters
+                pass
+            if self._tmpdir is None:
+                shutil.rmtree(writer.path, ignore_errors=True)
+        self._cleanup()
+
+    def _cleanup(self) -> None:
+        if self._tmpdir is not None:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            self._tmpdir = None
