@@ -33,9 +33,14 @@ def _round_up(n: int, m: int) -> int:
 
 
 def _aligned_zeros(n: int, dtype, align: int = 64) -> np.ndarray:
-    """Zeroed 1-D array whose data starts on a cache-line boundary (bricks = whole lines)."""
+    """Zeroed 1-D array whose data starts on a cache-line boundary (bricks = whole lines).
+
+    The zeros are written, not just mapped: the pages are committed now rather than faulted in
+    one by one while the first clouds are integrated.
+    """
     itemsize = np.dtype(dtype).itemsize
-    raw = np.zeros(n * itemsize + align, np.uint8)
+    raw = np.empty(n * itemsize + align, np.uint8)
+    raw.fill(0)
     start = (-raw.ctypes.data) % align
     return raw[start:start + n * itemsize].view(dtype)
 

@@ -552,6 +552,10 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
             _trace_part(part, *args)
 
 
+# How the parts of a batch run in parallel: 'threads' (the second part on a Python thread, the
+# kernel releases the GIL) or 'prange' (numba's threading layer, OpenMP here). Measured with
+# `landing-zone bench integrate`: equal on a quiet machine, but when another process holds one
+# of the two cores, OpenMP's spinning barrier costs ~16 ms per batch and the thread costs none.
 THREADING = 'threads'
 _EXECUTOR = None
 
