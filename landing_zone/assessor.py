@@ -1,0 +1,488 @@
+"""The one pipeline: integrate registered clouds into the map, judge its tiles, find sites.
+
+Both front ends (the ROS node and bag replay) drive this class, so the same clouds give the same
+tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler and the network
+(loaded once); :meth:`Assessor.integrate` adds a cloud, :meth:`Assessor.assess` judges the tiles:
+
+1. **Placement.** In follow mode (the default) the map's XY window sits on whole tiles around the
+   sensor's ground projection and scrolls when the sensor moves more than
+   ``map.recenter_distance`` from its centre; vertically it is placed around the ground under
+   the sensor (the median height of the cloud's returns) and moves when that drifts past half the
+   margin to the nearer window face. In fixed mode (``center=(x, y)``) the XY window never moves
+   and the height is placed once, from the first cloud.
+2. **Incremental assessment.** Only tiles whose voxels changed since the last pass (the map's
+   dirty tiles, widened by the tiles the network's padding reaches into) are re-extracted and
+   re-judged; the others keep their results, and tiles that scroll out are forgotten.
+3. **Judgement.** A tile the tiler marks valid (observed enough, see
+   :class:`~landing_zone.config.TileConfig`) gets P(safe) from the calibrated network (its
+   checkpoint's temperature); any other tile is unknown (NaN), never guessed safe.
+4. **Confidence** in [0, 1] says how much the judgement rests on observation: the product of
+   ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
+   the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
+   tile area))`` (saturating once the tile holds a few hundred returns per square metre).
+5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.sites`).
+
+Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
+this). The map is guarded by a lock held only while rays are integrated or counts are read; the
+network runs outside it, so integration never waits for inference.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from landing_zone.config import AssessorConfig
+from landing_zone.errors import InvalidCloudError, ModelError
+from landing_zone.sites import LandingSite, find_sites
+
+if TYPE_CHECKING:
+    from landing_zone.density_map import IntegrationStats
+
+__all__ = ['Assessor', 'Assessment', 'default_model_path', 'tile_confidence',
+           'MODEL_FILENAME']
+
+# The shipped model's file name inside models/ (in the repository or share/landing_zone/).
+MODEL_FILENAME = 'landing_zone.safetensors'
+# Observed fraction of a tile's cube that counts as fully observed: from above, only the half
+# above the ground voxel can be seen (the rest is occluded by the ground itself).
+FULL_OBSERVED_FRACTION = 0.5
+# Returns per square metre of tile at which the returns term reaches 1 - 1/e.
+RETURNS_PER_M2 = 100.0
+
+
+def tile_confidence(observed_fraction: np.ndarray, n_returns: np.ndarray,
+                    tile_size: float) -> np.ndarray:
+    """How much a tile's judgement rests on observation, in [0, 1] (see the module docstring).
+
+    Args:
+        observed_fraction: share of the tile's cube observed, in [0, 1].
+        n_returns: returns in the tile's column.
+        tile_size: tile edge [m].
+
+    Returns:
+        float32 array of the broadcast shape.
+    """
+    obs = np.clip(np.asarray(observed_fraction, np.float64) / FULL_OBSERVED_FRACTION, 0.0, 1.0)
+    scale = RETURNS_PER_M2 * tile_size * tile_size
+    ret = 1.0 - np.exp(-np.maximum(np.asarray(n_returns, np.float64), 0.0) / scale)
+    return (obs * ret).astype(np.float32)
+
+
+def default_model_path() -> Path:
+    """The shipped model: ``models/landing_zone.safetensors`` in the first place it exists.
+
+    Looked up in the package's share directory (colcon install, via ament_index when present),
+    ``<prefix>/share/landing_zone/models`` (pip install), then the source tree's ``models/``.
+
+    Raises:
+        ModelError: no shipped model is installed.
+    """
+    candidates: list[Path] = []
+    try:  # ament_index is ROS tooling but not rclpy; absent on a plain pip install
+        from ament_index_python.packages import (PackageNotFoundError,
+                                                 get_package_share_directory)
+        try:
+            candidates.append(Path(get_package_share_directory('landing_zone')) / 'models')
+        except (PackageNotFoundError, OSError):  # OSError: AMENT_PREFIX_PATH unset
+            pass
+    except ImportError:
+        pass
+    candidates.append(Path(sys.prefix) / 'share' / 'landing_zone' / 'models')
+    candidates.append(Path(__file__).resolve().parent.parent / 'models')
+    for directory in candidates:
+        path = directory / MODEL_FILENAME
+        if path.is_file():
+            return path
+    raise ModelError(f'no shipped model found ({MODEL_FILENAME} in '
+                     f'{", ".join(str(c) for c in candidates)}); pass a model file '
+                     '(--model / model.path)')
+
+
+@dataclass
+class Assessment:
+    """The tiles of the map's window and the landing sites, at one moment.
+
+    The tiles are the map's XY window cut on the global tile lattice, listed x-major (tile
+    ``(origin[0] + i, origin[1] + j)`` is entry ``i * shape[1] + j``), so every per-tile array
+    reshapes to the grid with :meth:`grid`.
+
+    Attributes:
+        frame_id: fixed frame of the coordinates.
+        tile_size: tile edge [m].
+        origin: global tile index (kx, ky) of grid cell (0, 0).
+        shape: tiles of the grid along x and y.
+        index: (T, 2) int64 global tile indices.
+        centers: (T, 2) float64 tile centres [m].
+        ground_z: (T,) float64 estimated ground height [m]; NaN where none was found.
+        p_safe: (T,) float32 P(safe); NaN where the tile is not observed enough to judge.
+        confidence: (T,) float32 in [0, 1].
+        observed_fraction: (T,) float32 observed share of each tile's cube.
+        n_returns: (T,) int64 returns in each tile's column.
+        sites: landing-site candidates, best first.
+        stamp: time [s] of the newest cloud integrated before this assessment, if given.
+        reassessed: tiles re-extracted in this pass (the others kept their results).
+        seconds: wall time of this pass [s].
+    """
+
+    frame_id: str
+    tile_size: float
+    origin: tuple[int, int]
+    shape: tuple[int, int]
+    index: np.ndarray
+    centers: np.ndarray
+    ground_z: np.ndarray
+    p_safe: np.ndarray
+    confidence: np.ndarray
+    observed_fraction: np.ndarray
+    n_returns: np.ndarray
+    sites: list[LandingSite] = field(default_factory=list)
+    stamp: float | None = None
+    reassessed: int = 0
+    seconds: float = 0.0
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+    @property
+    def known(self) -> np.ndarray:
+        """(T,) bool, tiles that were judged (p_safe is a number)."""
+        return np.isfinite(self.p_safe)
+
+    def grid(self, values: np.ndarray) -> np.ndarray:
+        """A per-tile array as the (X, Y) grid (cell (i, j) is tile ``origin + (i, j)``)."""
+        return np.asarray(values).reshape(self.shape)
+
+    def lookup(self, x: float, y: float) -> int | None:
+        """Entry of the tile containing world point (x, y), or None outside the grid."""
+        i = math.floor(x / self.tile_size) - self.origin[0]
+        j = math.floor(y / self.tile_size) - self.origin[1]
+        if 0 <= i < self.shape[0] and 0 <= j < self.shape[1]:
+            return i * self.shape[1] + j
+        return None
+
+    def to_report(self, stats: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The REPORT.json document (../shared/CONTRACT.md §3).
+
+        Args:
+            stats: the front end's counters (clouds, points, dropped_points, seconds, ...).
+        """
+        tiles = []
+        for (x, y), gz, p, c in zip(self.centers.tolist(), self.ground_z.tolist(),
+                                    self.p_safe.tolist(), self.confidence.tolist()):
+            tiles.append({'x': x, 'y': y,
+                          'ground_z': None if math.isnan(gz) else round(gz, 4),
+                          'p_safe': None if math.isnan(p) else round(p, 6),
+                          'confidence': round(c, 6)})
+        return {'frame_id': self.frame_id, 'tile_size': self.tile_size, 'tiles': tiles,
+                'landing_sites': [s.to_dict() for s in self.sites],
+                'stats': dict(stats or {})}
+
+
+class _TileState:
+    """Per-tile results on the map's tile window, shifted when the window scrolls."""
+
+    def __init__(self, origin: np.ndarray, shape: tuple[int, int]) -> None:
+        self.origin = np.asarray(origin, np.int64).copy()
+        self.shape = shape
+        self.p_safe = np.full(shape, np.nan, np.float32)
+        self.confidence = np.zeros(shape, np.float32)
+        self.ground_z = np.full(shape, np.nan, np.float64)
+        self.observed_fraction = np.zeros(shape, np.float32)
+        self.n_returns = np.zeros(shape, np.int64)
+
+    _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns')
+
+    def move(self, origin: np.ndarray) -> None:
+        """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
+        origin = np.asarray(origin, np.int64)
+        d = origin - self.origin
+        if not d.any():
+            return
+        fresh = _TileState(origin, self.shape)
+        sx, sy = self.shape
+        # overlap in old cell coordinates: [d, d + shape) ∩ [0, shape)
+        a = np.maximum(d, 0)
+        b = np.minimum(d + np.array([sx, sy]), [sx, sy])
+        if np.all(b > a):
+            for name in self._FIELDS:
+                getattr(fresh, name)[a[0] - d[0]:b[0] - d[0], a[1] - d[1]:b[1] - d[1]] = \
+                    getattr(self, name)[a[0]:b[0], a[1]:b[1]]
+        self.__dict__.update(fresh.__dict__)
+
+    def cells(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cell coordinates of global tile indices and which of them lie in the window."""
+        rel = np.asarray(index, np.int64) - self.origin
+        inside = np.all((rel >= 0) & (rel < self.shape), axis=1)
+        return rel[:, 0], rel[:, 1], inside
+
+
+class Assessor:
+    """Integrate clouds, judge tiles, find landing sites (../shared/CONTRACT.md §4).
+
+    Examples:
+        >>> a = Assessor()                          # follow mode, the shipped model
+        >>> a = Assessor(center=(10.0, -4.0))       # a fixed region of interest
+        >>> a.integrate(points_xyz, sensor_origin)  # (N, 3) and (3,), fixed frame [m]
+        >>> result = a.assess()                     # per-tile p_safe, confidence, sites
+
+    Attributes:
+        config: the resolved configuration (``center`` set in fixed mode).
+        map: the :class:`~landing_zone.density_map.DensityMap`.
+        model: the network; ``model_path`` the file it came from (None if passed in).
+        model_metadata: the checkpoint's metadata.
+        stats: the integration counters summed over every cloud.
+        clouds: clouds integrated.
+    """
+
+    def __init__(self, config: AssessorConfig | None = None, *,
+                 center: Sequence[float] | None = None, model: Any = None) -> None:
+        """Build the map and load the network.
+
+        Args:
+            config: the pipeline's configuration; default :class:`AssessorConfig()`.
+            center: (x, y) of a fixed region of interest; overrides ``config.center``. None
+                (and no ``config.center``): the map follows the sensor.
+            model: a loaded :class:`~landing_zone.model.SafetyNet`, or a path to a checkpoint;
+                default ``config.model.path``, or the shipped model when that is empty.
+
+        Raises:
+            ConfigError: an invalid configuration.
+            ModelError: the model is missing, corrupt, or expects other inputs than the tiler
+                makes.
+        """
+        from landing_zone.density_map import DensityMap, IntegrationStats
+        from landing_zone.tiles import tile_voxels
+
+        # a private copy: the caller may go on editing theirs
+        cfg = copy.deepcopy(config) if config is not None else AssessorConfig()
+        if center is not None:
+            c = tuple(float(v) for v in np.asarray(center, np.float64).reshape(-1))
+            cfg.center = c  # type: ignore[assignment]
+        cfg.validate()
+        self.config = cfg
+        self.tile_vox = tile_voxels(cfg.map.voxel_size, cfg.tiles)
+        self.tile_size = float(cfg.tiles.tile_size)
+        self._n_tiles = (int(round(cfg.map.shape[0] / self.tile_vox)),
+                         int(round(cfg.map.shape[1] / self.tile_vox)))
+        # how many tiles the padding of a tile's input reaches into on each side
+        self._reach = int(math.ceil(cfg.tiles.padding / self.tile_vox))
+        self.model, self.model_metadata, self.model_path = self._load_model(model)
+        side = self.tile_vox + 2 * cfg.tiles.padding
+        if int(self.model.config.input_size) != side:
+            raise ModelError(
+                f'model {self.model_path or "(given)"} reads {self.model.config.input_size}^3 '
+                f'volumes but tiles.tile_size / map.voxel_size + 2 * tiles.padding gives '
+                f'{side}^3')
+        self._check_voxel_size()
+        self._map_lock = threading.Lock()  # the map and the tile window's placement
+        self._state_lock = threading.Lock()  # the tile results
+        self._assess_lock = threading.Lock()  # one assessment pass at a time
+        self.map: DensityMap = DensityMap(cfg.map, tile_vox=self.tile_vox)
+        self.stats: IntegrationStats = IntegrationStats()
+        self.clouds = 0
+        self._placed_z = False
+        self._stamp: float | None = None
+        start = (0.0, 0.0) if cfg.center is None else cfg.center
+        self._place(start[0], start[1], 0.0)
+        self._state = _TileState(self._tile_origin(), self._n_tiles)
+        self._last: Assessment | None = None
+
+    # -- set-up -----------------------------------------------------------------------------
+
+    def _load_model(self, model: Any) -> tuple[Any, dict[str, Any], Path | None]:
+        from landing_zone.model import SafetyNet, load_model
+
+        if isinstance(model, SafetyNet):
+            return model.eval(), {}, None
+        if model is not None and not isinstance(model, (str, os.PathLike)):
+            raise ModelError(f'model must be a SafetyNet or a path, got {type(model).__name__}')
+        path = Path(model) if model is not None else (
+            Path(self.config.model.path) if self.config.model.path else default_model_path())
+        net, meta = load_model(path, device=self.config.model.device)
+        return net, meta, path
+
+    def _check_voxel_size(self) -> None:
+        meta = self.model_metadata
+        trained = None
+        for holder in (meta, meta.get('map'), meta.get('inputs')):
+            if isinstance(holder, dict) and isinstance(holder.get('voxel_size'), (int, float)):
+                trained = float(holder['voxel_size'])
+                break
+        if trained is not None and abs(trained - self.config.map.voxel_size) > 1e-9:
+            raise ModelError(f'model {self.model_path} was trained on {trained} m voxels but '
+                             f'map.voxel_size is {self.config.map.voxel_size} m')
+
+    # -- placement --------------------------------------------------------------------------
+
+    @property
+    def follow(self) -> bool:
+        """Whether the map follows the sensor (no fixed centre)."""
+        return self.config.center is None
+
+    def _tile_origin(self) -> np.ndarray:
+        return self.map.lo[:2] // self.tile_vox
+
+    def _place(self, x: float, y: float, ground_z: float) -> None:
+        """Put the window's XY on whole tiles around (x, y) and its z around ``ground_z``."""
+        nt = np.array(self._n_tiles, np.int64)
+        k = np.array([round(x / self.tile_size), round(y / self.tile_size)], np.int64)
+        lo_xy = (k - nt // 2) * self.tile_vox
+        vs = self.config.map.voxel_size
+        lo_z = math.floor(ground_z / vs) - int(round(self.config.map.z_below / vs))
+        self.map.set_lo(np.array([lo_xy[0], lo_xy[1], lo_z], np.int64))
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) world position [m] of the window's XY centre and its ground level."""
+        lo_m, hi_m = self.map.bounds
+        return np.array([(lo_m[0] + hi_m[0]) / 2, (lo_m[1] + hi_m[1]) / 2,
+                         lo_m[2] + self.config.map.z_below])
+
+    def _maybe_recenter(self, points: np.ndarray, origin: np.ndarray) -> None:
+        z = points[:, 2]
+        z = z[np.isfinite(z)]
+        # the ground under the sensor: the median height of the returns (most hit the ground);
+        # a cloud without finite returns says nothing about it
+        ground = float(np.median(z)) if z.size else None
+        mc = self.config.map
+        c = self.center
+        z_margin = min(mc.z_below, mc.size_z - mc.z_below)
+        z_moved = ground is not None and (
+            not self._placed_z or abs(ground - c[2]) > max(z_margin / 2, mc.voxel_size))
+        if self.follow:
+            xy_moved = math.hypot(origin[0] - c[0], origin[1] - c[1]) > mc.recenter_distance
+            if xy_moved or z_moved:
+                self._place(float(origin[0]), float(origin[1]),
+                            ground if z_moved and ground is not None else float(c[2]))
+        elif z_moved and not self._placed_z and ground is not None:
+            self._place(*self.config.center, ground)  # type: ignore[misc]
+        self._placed_z = self._placed_z or ground is not None
+        with self._state_lock:
+            self._state.move(self._tile_origin())
+
+    # -- the pipeline -----------------------------------------------------------------------
+
+    def integrate(self, points: np.ndarray, origin: Sequence[float],
+                  stamp: float | None = None) -> IntegrationStats:
+        """Add one registered cloud to the map (moving the map first in follow mode).
+
+        Args:
+            points: (N, 3) returns in the fixed frame [m]; NaN/Inf rows are dropped and
+                counted in the returned stats, never raised.
+            origin: (3,) the sensor origin of the cloud (its pose at the cloud's stamp) [m].
+            stamp: the cloud's time [s]; recorded as the assessment's stamp.
+
+        Returns:
+            What happened to the returns.
+
+        Raises:
+            InvalidCloudError: ``points`` is not an (N, 3) numeric array or ``origin`` is not
+                three finite numbers.
+        """
+        pts = np.asarray(points)
+        if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in 'fiu':
+            raise InvalidCloudError(f'points must be a numeric (N, 3) array, got shape '
+                                    f'{pts.shape} dtype {pts.dtype}')
+        org = np.asarray(origin, np.float64).reshape(-1)
+        if org.shape != (3,) or not np.all(np.isfinite(org)):
+            raise InvalidCloudError(f'sensor origin must be three finite numbers, got {origin!r}')
+        with self._map_lock:
+            self._maybe_recenter(pts, org)
+            st = self.map.integrate(pts, org)
+            self.stats = self.stats + st
+            self.clouds += 1
+            if stamp is not None:
+                self._stamp = float(stamp)
+        return st
+
+    def _dirty_tiles(self) -> np.ndarray:
+        """Tiles to re-extract: changed ones and the neighbours whose padding reaches them."""
+        dirty = self.map.pop_dirty()
+        origin = self._tile_origin()
+        shape = np.array(self._n_tiles)
+        grid = np.zeros(self._n_tiles, bool)
+        rel = dirty - origin
+        keep = np.all((rel >= 0) & (rel < shape), axis=1)
+        grid[rel[keep, 0], rel[keep, 1]] = True
+        if self._reach and grid.any():
+            from scipy.ndimage import binary_dilation
+            grid = binary_dilation(grid, np.ones((2 * self._reach + 1,) * 2, bool))
+        return np.argwhere(grid).astype(np.int64) + origin
+
+    def assess(self) -> Assessment:
+        """Judge the tiles whose voxels changed since the last pass; return all tiles' state.
+
+        Returns:
+            An :class:`Assessment` of every tile of the current window.
+        """
+        from landing_zone.model import predict
+        from landing_zone.tiles import extract_tiles
+
+        with self._assess_lock:
+            t0 = time.perf_counter()
+            with self._map_lock:
+                todo = self._dirty_tiles()
+                batch = extract_tiles(self.map, self.config.tiles, todo) if len(todo) else None
+                stamp = self._stamp
+            p = np.full(len(todo), np.nan, np.float32)
+            if batch is not None and batch.valid.any():
+                # the network runs outside the map's lock: integration goes on meanwhile
+                p[batch.valid] = predict(self.model, batch.inputs[batch.valid],
+                                         batch_size=self.config.model.batch_size)
+            with self._state_lock:
+                st = self._state
+                if batch is not None:
+                    i, j, inside = st.cells(batch.index)
+                    i, j = i[inside], j[inside]
+                    st.p_safe[i, j] = p[inside]
+                    st.ground_z[i, j] = batch.ground_z[inside]
+                    st.observed_fraction[i, j] = batch.observed_fraction[inside]
+                    st.n_returns[i, j] = batch.n_returns[inside]
+                    st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
+                                                          batch.n_returns[inside],
+                                                          self.tile_size)
+                result = self._snapshot(st, stamp)
+            result.reassessed = int(len(todo))
+            result.seconds = time.perf_counter() - t0
+            self._last = result
+            return result
+
+    def _snapshot(self, st: _TileState, stamp: float | None) -> Assessment:
+        sx, sy = st.shape
+        gx, gy = np.meshgrid(np.arange(sx), np.arange(sy), indexing='ij')
+        index = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.int64) + st.origin
+        sites = find_sites(st.p_safe, st.confidence, (int(st.origin[0]), int(st.origin[1])),
+                           self.config.landing_sites, self.tile_size, ground_z=st.ground_z)
+        return Assessment(
+            frame_id=self.config.frame_id, tile_size=self.tile_size,
+            origin=(int(st.origin[0]), int(st.origin[1])), shape=(int(sx), int(sy)),
+            index=index, centers=(index + 0.5) * self.tile_size,
+            ground_z=st.ground_z.ravel().copy(), p_safe=st.p_safe.ravel().copy(),
+            confidence=st.confidence.ravel().copy(),
+            observed_fraction=st.observed_fraction.ravel().copy(),
+            n_returns=st.n_returns.ravel().copy(), sites=sites, stamp=stamp)
+
+    @property
+    def last(self) -> Assessment | None:
+        """The most recent assessment, if any."""
+        return self._last
+
+    @property
+    def nbytes(self) -> int:
+        """Memory of the map's counts [bytes]."""
+        return int(self.map.nbytes)
+
+    def __repr__(self) -> str:
+        mode = 'follow' if self.follow else f'fixed at {self.config.center}'
+        return (f'Assessor({mode}, model={self.model.config.spec}, map={self.map!r}, '
+                f'clouds={self.clouds})')
