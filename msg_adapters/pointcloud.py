@@ -49,6 +49,8 @@ DATATYPES: dict[int, tuple[str, str]] = {
 }
 _FROM_NUMPY = {code: datatype for datatype, (_, code) in DATATYPES.items()}
 _XYZ = ('x', 'y', 'z')
+# numpy item sizes are C ints; no real point comes near this anyway.
+_MAX_POINT_STEP = 2**31 - 1
 
 
 def _uint(msg: Any, attr: str) -> int:
@@ -147,6 +149,9 @@ def _view(msg: Any, names: tuple[str, ...] | None = None) -> np.ndarray:
     """
     height, width = _uint(msg, 'height'), _uint(msg, 'width')
     point_step, row_step = _uint(msg, 'point_step'), _uint(msg, 'row_step')
+    if point_step > _MAX_POINT_STEP:
+        raise InvalidCloudError(f'cloud point_step {point_step} is beyond any real point '
+                                f'(at most {_MAX_POINT_STEP} bytes)')
     specs = _field_specs(msg, point_step)
     if names is not None:
         by_name = {s[0]: s for s in specs}
@@ -187,6 +192,8 @@ def cloud_dtype(msg: Any) -> np.dtype:
         InvalidCloudError: The fields are malformed.
     """
     point_step = _uint(msg, 'point_step')
+    if point_step > _MAX_POINT_STEP:
+        raise InvalidCloudError(f'cloud point_step {point_step} is beyond any real point')
     byteorder = '>' if bool(getattr(msg, 'is_bigendian', False)) else '<'
     return _dtype(_field_specs(msg, point_step), point_step, byteorder)
 
@@ -218,8 +225,10 @@ def cloud_to_xyz(msg: Any) -> tuple[np.ndarray, int]:
                                     'must be FLOAT32 or FLOAT64')
     height, width = view.shape
     xyz = np.empty((height, width, 3), dtype=np.float64)
-    for axis, name in enumerate(_XYZ):
-        xyz[..., axis] = view[name]  # converts byte order and precision in one strided pass
+    # Garbage bytes can hold signalling NaNs, whose cast raises numpy's 'invalid' warning.
+    with np.errstate(invalid='ignore'):
+        for axis, name in enumerate(_XYZ):
+            xyz[..., axis] = view[name]  # converts byte order and precision in one pass
     xyz = xyz.reshape(-1, 3)
     finite = np.isfinite(xyz).all(axis=1)
     n_dropped = int(finite.size - np.count_nonzero(finite))
@@ -247,8 +256,9 @@ def cloud_to_structured(msg: Any, *, organized: bool = False) -> np.ndarray:
     view = _view(msg)
     native = view.dtype.newbyteorder('=')
     out = np.zeros(view.shape, dtype=native)  # zeros: padding bytes are deterministic
-    for name in native.names:
-        out[name] = view[name]
+    with np.errstate(invalid='ignore'):  # signalling NaNs in garbage bytes
+        for name in native.names:
+            out[name] = view[name]
     return out if organized else out.reshape(-1)
 
 
