@@ -137,15 +137,16 @@ def _dtype(specs: list[tuple[str, int, int, int]], point_step: int,
                      'offsets': [s[1] for s in specs], 'itemsize': point_step})
 
 
-def _view(msg: Any, names: tuple[str, ...] | None = None) -> np.ndarray:
-    """A read-only (height, width) structured view of the cloud's bytes, validated.
+def _view(msg: Any, names: tuple[str, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A (height, width) structured view of the cloud's bytes, validated.
 
     Args:
         msg: The PointCloud2.
         names: Only these fields (all must exist); ``None`` for all fields.
 
     Returns:
-        The view; its dtype has the message's byte order.
+        ``(view, buf)``: the view, whose dtype has the message's byte order, and the flat
+        ``uint8`` buffer it looks at (``None`` for an empty cloud).
     """
     height, width = _uint(msg, 'height'), _uint(msg, 'width')
     point_step, row_step = _uint(msg, 'point_step'), _uint(msg, 'row_step')
@@ -177,12 +178,12 @@ def _view(msg: Any, names: tuple[str, ...] | None = None) -> np.ndarray:
                                 f'= {height} * {row_step} = {height * row_step}')
     dtype = _dtype(specs, point_step, byteorder)
     if height * width == 0:
-        return np.zeros((height, width), dtype=dtype)
+        return np.zeros((height, width), dtype=dtype), buf
     if point_step == 0:
         # Fields of zero size only (impossible: count >= 1) or none: nothing to view.
         raise InvalidCloudError(f'cloud point_step is 0 with {width * height} points')
     return np.ndarray(shape=(height, width), dtype=dtype, buffer=buf,
-                      strides=(row_step, point_step))
+                      strides=(row_step, point_step)), buf
 
 
 def cloud_dtype(msg: Any) -> np.dtype:
@@ -213,7 +214,7 @@ def cloud_to_xyz(msg: Any) -> tuple[np.ndarray, int]:
     Raises:
         InvalidCloudError: The cloud is malformed or its x/y/z fields are missing or not floats.
     """
-    view = _view(msg, _XYZ)
+    view, buf = _view(msg, _XYZ)
     for name in _XYZ:
         field_dtype = view.dtype.fields[name][0]
         if field_dtype.shape != ():
@@ -224,16 +225,30 @@ def cloud_to_xyz(msg: Any) -> tuple[np.ndarray, int]:
             raise InvalidCloudError(f'cloud field {name!r} is {DATATYPES[datatype][0]}; x, y, z '
                                     'must be FLOAT32 or FLOAT64')
     height, width = view.shape
-    xyz = np.empty((height, width, 3), dtype=np.float64)
+    n = height * width
+    fx, fy, fz = (view.dtype.fields[name] for name in _XYZ)
     # Garbage bytes can hold signalling NaNs, whose cast raises numpy's 'invalid' warning.
     with np.errstate(invalid='ignore'):
-        for axis, name in enumerate(_XYZ):
-            xyz[..., axis] = view[name]  # converts byte order and precision in one pass
-    xyz = xyz.reshape(-1, 3)
-    finite = np.isfinite(xyz).all(axis=1)
-    n_dropped = int(finite.size - np.count_nonzero(finite))
+        if fx[0] == fy[0] == fz[0] and fy[1] == fx[1] + fx[0].itemsize \
+                and fz[1] == fy[1] + fx[0].itemsize and n:
+            # The usual layout, x y z adjacent and of one type: one (N, 3) strided view, one
+            # cast (2x faster than three).
+            size = fx[0].itemsize
+            coords = np.ndarray(shape=(height, width, 3), dtype=fx[0], buffer=buf,
+                                offset=fx[1], strides=(*view.strides, size))
+            xyz = coords.astype(np.float64).reshape(n, 3)
+        else:
+            xyz = np.empty((height, width, 3), dtype=np.float64)
+            for axis, name in enumerate(_XYZ):
+                xyz[..., axis] = view[name]  # converts byte order and precision in one pass
+            xyz = xyz.reshape(n, 3)
+    # Per column and np.compress: 5x faster than isfinite(xyz).all(axis=1) and xyz[mask].
+    finite = np.isfinite(xyz[:, 0])
+    finite &= np.isfinite(xyz[:, 1])
+    finite &= np.isfinite(xyz[:, 2])
+    n_dropped = int(n - np.count_nonzero(finite))
     if n_dropped:
-        xyz = xyz[finite]
+        xyz = np.compress(finite, xyz, axis=0)
     return xyz, n_dropped
 
 
@@ -253,7 +268,7 @@ def cloud_to_structured(msg: Any, *, organized: bool = False) -> np.ndarray:
     Raises:
         InvalidCloudError: The cloud is malformed.
     """
-    view = _view(msg)
+    view, _ = _view(msg)
     native = view.dtype.newbyteorder('=')
     out = np.zeros(view.shape, dtype=native)  # zeros: padding bytes are deterministic
     with np.errstate(invalid='ignore'):  # signalling NaNs in garbage bytes
