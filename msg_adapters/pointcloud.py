@@ -67,6 +67,16 @@ def _uint(msg: Any, attr: str) -> int:
     return value
 
 
+def _byteorder(msg: Any) -> str:
+    """numpy's byte-order character for the cloud's ``is_bigendian``."""
+    try:
+        return '>' if bool(msg.is_bigendian) else '<'
+    except AttributeError:
+        raise InvalidCloudError('cloud has no attribute is_bigendian') from None
+    except (TypeError, ValueError):
+        raise InvalidCloudError('cloud is_bigendian is not a boolean') from None
+
+
 def _data_bytes(data: Any) -> np.ndarray:
     """The message's ``data`` as a flat ``uint8`` array, without copying where possible."""
     if isinstance(data, np.ndarray):
@@ -161,10 +171,7 @@ def _view(msg: Any, names: tuple[str, ...] | None = None) -> tuple[np.ndarray, n
             raise InvalidCloudError(f'cloud lacks field(s) {", ".join(missing)} (it has '
                                     f'{", ".join(by_name) or "no fields"})')
         specs = [by_name[n] for n in names]
-    try:
-        byteorder = '>' if bool(msg.is_bigendian) else '<'
-    except AttributeError:
-        raise InvalidCloudError('cloud has no attribute is_bigendian') from None
+    byteorder = _byteorder(msg)
     if row_step < width * point_step:
         raise InvalidCloudError(f'cloud row_step {row_step} is less than width * point_step '
                                 f'= {width} * {point_step}')
@@ -195,8 +202,7 @@ def cloud_dtype(msg: Any) -> np.dtype:
     point_step = _uint(msg, 'point_step')
     if point_step > _MAX_POINT_STEP:
         raise InvalidCloudError(f'cloud point_step {point_step} is beyond any real point')
-    byteorder = '>' if bool(getattr(msg, 'is_bigendian', False)) else '<'
-    return _dtype(_field_specs(msg, point_step), point_step, byteorder)
+    return _dtype(_field_specs(msg, point_step), point_step, _byteorder(msg))
 
 
 def cloud_to_xyz(msg: Any) -> tuple[np.ndarray, int]:

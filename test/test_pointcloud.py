@@ -264,6 +264,7 @@ def _malformed():
         (dict(good, data=[0] * 23 + [256]), r'outside \[0, 255\]'),
         (dict(good, data=np.zeros(6, np.float32)), 'dtype float32, expected uint8'),
         (dict(good, width=2.0), 'width is not an integer'),
+        (dict(good, bigendian=np.array([True, False])), 'is_bigendian is not a boolean'),
     ]
     return cases
 
