@@ -20,12 +20,15 @@ import numpy as np
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
 from landing_zone.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
-                                   prepare_rays, trace_rays)
+                                   prepare_rays, run_parts, trace_rays)
 
 __all__ = ['DensityMap', 'IntegrationStats', 'COUNT_MAX']
 
 _BRICK_VOX = BRICK ** 3
 _COLD_BYTES = 2 * _BRICK_VOX  # high bytes of the hits, then of the passes, of one brick
+# Below this many rays a batch is walked on the calling thread alone: waking a helper costs
+# more than it saves.
+_PARALLEL_MIN_RAYS = 2048
 
 
 def _round_up(n: int, m: int) -> int:
@@ -47,8 +50,8 @@ def _aligned_zeros(n: int, dtype, align: int = 64) -> np.ndarray:
 
 # --- compiled storage operations ---------------------------------------------------------------
 
-@nb.njit(cache=True, parallel=True)
-def _gather_hot(hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
+@nb.njit(cache=True, nogil=True)
+def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
     """Copy the hot bytes of the requested box (global indices) into logical order."""
     r0 = np.empty(3, np.int64)
     r1 = np.empty(3, np.int64)
@@ -67,7 +70,8 @@ def _gather_hot(hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
         offz[k] = (s >> 2) * 64 + (s & 3)
     z0 = r0[2]
     z1 = r1[2]
-    for i in nb.prange(r0[0], r1[0]):
+    span = r1[0] - r0[0]
+    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
         s = (qlo[0] + i) % dims[0]
         offx = (s >> 2) * sx_stride + (s & 3) * 16
         for j in range(r0[1], r1[1]):
@@ -79,11 +83,10 @@ def _gather_hot(hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
 
 
 @nb.njit(cache=True)
-def _gather_cold(cdir, pool, dims, wlo, wn, qlo, qn, out_h, out_p):
+def _gather_cold(cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
     """Add 256 x the cold high bytes of every brick that has them (rare) to the output."""
     byn = dims[1] // BRICK
     bzn = dims[2] // BRICK
-    per_part = byn // pool.shape[0]
     for brick in range(cdir.shape[0]):
         slot = cdir[brick]
         if slot < 0:
@@ -91,7 +94,7 @@ def _gather_cold(cdir, pool, dims, wlo, wn, qlo, qn, out_h, out_p):
         bz = brick % bzn
         by = (brick // bzn) % byn
         bx = brick // (bzn * byn)
-        part = by // per_part
+        part = row_part[by]
         for w in range(64):
             hi_h = pool[part, slot, w]
             hi_p = pool[part, slot, 64 + w]
@@ -114,8 +117,8 @@ def _gather_cold(cdir, pool, dims, wlo, wn, qlo, qn, out_h, out_p):
                 out_p[i, j, k] += np.uint32(hi_p) << 8
 
 
-@nb.njit(cache=True, parallel=True)
-def _density_hot(hits, passes, dims, wlo, wn, qlo, qn, out):
+@nb.njit(cache=True, nogil=True)
+def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
     """Density straight from the hot bytes (valid while no cold block exists)."""
     r0 = np.empty(3, np.int64)
     r1 = np.empty(3, np.int64)
@@ -134,7 +137,8 @@ def _density_hot(hits, passes, dims, wlo, wn, qlo, qn, out):
         offz[k] = (s >> 2) * 64 + (s & 3)
     z0 = r0[2]
     z1 = r1[2]
-    for i in nb.prange(r0[0], r1[0]):
+    span = r1[0] - r0[0]
+    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
         s = (qlo[0] + i) % dims[0]
         offx = (s >> 2) * sx_stride + (s & 3) * 16
         for j in range(r0[1], r1[1]):
@@ -146,12 +150,10 @@ def _density_hot(hits, passes, dims, wlo, wn, qlo, qn, out):
 
 
 @nb.njit(cache=True)
-def _clear_storage(hits, passes, cdir, pool, dims, s0, s1):
+def _clear_storage(hits, passes, cdir, pool, row_part, dims, s0, s1):
     """Zero the counts of the storage box [s0, s1) (no wrap), cold high bytes included."""
     sy_stride = (dims[2] // BRICK) * 64
     sx_stride = (dims[1] // BRICK) * sy_stride
-    byn = dims[1] // BRICK
-    per_part = byn // pool.shape[0]
     any_cold = False
     for b in range(cdir.shape[0]):
         if cdir[b] >= 0:
@@ -161,7 +163,7 @@ def _clear_storage(hits, passes, cdir, pool, dims, s0, s1):
         offx = (sx >> 2) * sx_stride + (sx & 3) * 16
         for sy in range(s0[1], s1[1]):
             base = offx + (sy >> 2) * sy_stride + (sy & 3) * 4
-            part = (sy >> 2) // per_part
+            part = row_part[sy >> 2]
             for sz in range(s0[2], s1[2]):
                 idx = base + (sz >> 2) * 64 + (sz & 3)
                 hits[idx] = 0
@@ -174,11 +176,10 @@ def _clear_storage(hits, passes, cdir, pool, dims, s0, s1):
 
 
 @nb.njit(cache=True)
-def _compact_cold(cdir, pool, used, dims):
+def _compact_cold(cdir, pool, used, row_part, dims):
     """Give back cold blocks that scrolling left all zero, keeping each part's pool dense."""
     byn = dims[1] // BRICK
     bzn = dims[2] // BRICK
-    per_part = byn // pool.shape[0]
     nparts = pool.shape[0]
     new_slot = np.full((nparts, pool.shape[1]), -1, np.int64)
     fill = np.zeros(nparts, np.int64)
@@ -186,7 +187,7 @@ def _compact_cold(cdir, pool, used, dims):
         slot = cdir[brick]
         if slot < 0:
             continue
-        part = ((brick // bzn) % byn) // per_part
+        part = row_part[(brick // bzn) % byn]
         empty = True
         for w in range(128):
             if pool[part, slot, w] != 0:
@@ -212,7 +213,7 @@ def _compact_cold(cdir, pool, used, dims):
     for brick in range(cdir.shape[0]):
         slot = cdir[brick]
         if slot >= 0:
-            part = ((brick // bzn) % byn) // per_part
+            part = row_part[(brick // bzn) % byn]
             cdir[brick] = new_slot[part, slot]
 
 
@@ -265,17 +266,22 @@ class DensityMap:
         self._n = np.array(self.shape, np.int64)
         self._z_below_vox = int(round(self.config.z_below / self.voxel_size))
         # Ring dimensions: whole bricks, and y in whole bricks per part so no brick is shared.
-        self._dims = np.array([_round_up(self.shape[0], BRICK),
-                               _round_up(self.shape[1], BRICK * PARTS),
-                               _round_up(self.shape[2], BRICK)], np.int64)
+        self._dims = np.array([_round_up(v, BRICK) for v in self.shape], np.int64)
+        # Storage brick rows along y are dealt out to the parts in contiguous slabs.
+        rows = int(self._dims[1] // BRICK)
+        self._nparts = min(PARTS, rows)
+        self._row_start = np.array([k * rows // self._nparts for k in range(self._nparts + 1)],
+                                   np.int64)
+        self._row_part = np.repeat(np.arange(self._nparts, dtype=np.int64),
+                                   np.diff(self._row_start))
         nvox = int(np.prod(self._dims))
         self._hits = _aligned_zeros(nvox, np.uint8)
         self._passes = _aligned_zeros(nvox, np.uint8)
         self._cdir = np.full(nvox // _BRICK_VOX, -1, np.int32)
-        self._worst = int(self._dims[0] // BRICK + self._dims[1] // BRICK
-                          + self._dims[2] // BRICK + 4)
-        self._pool = np.zeros((PARTS, 2 * self._worst, _COLD_BYTES), np.uint8)
-        self._used = np.zeros(PARTS, np.int64)
+        # the most cold blocks one ray can claim in one part (see raytrace._trace_part)
+        self._worst = int(self._dims.sum() // BRICK + 6)
+        self._pool = np.zeros((self._nparts, self._worst, _COLD_BYTES), np.uint8)
+        self._used = np.zeros(self._nparts, np.int64)
         self.parallel = bool(parallel)
         # XY cell (voxels) the batch is counting-sorted by before the walk; 0 keeps input order
         self.sort_tile = SORT_TILE
@@ -363,13 +369,13 @@ class DensityMap:
         stats.integrated = int(nvalid)
         if nvalid == 0:
             return stats
-        resume = np.zeros(PARTS, np.int64)
-        counters = np.zeros((PARTS, 2), np.int64)
+        resume = np.zeros(self._nparts, np.int64)
+        counters = np.zeros((self._nparts, 2), np.int64)
         while True:
             trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
                        self._passes, self._cdir, self._pool, self._used, resume,
                        self._dirty_parts, self._dirty_lo, self.tile_vox, counters,
-                       parallel=self.parallel)
+                       parallel=self.parallel and nvalid >= _PARALLEL_MIN_RAYS)
             if np.all(resume >= 2 * nvalid):
                 break
             # a part stopped before a ray that might not find a free cold block: grow, resume
@@ -382,7 +388,7 @@ class DensityMap:
 
     def _grow_pool(self) -> None:
         cap = self._pool.shape[1]
-        pool = np.zeros((PARTS, 2 * cap, _COLD_BYTES), np.uint8)
+        pool = np.zeros((self._nparts, 2 * cap, _COLD_BYTES), np.uint8)
         pool[:, :cap] = self._pool
         self._pool = pool
 
@@ -443,10 +449,10 @@ class DensityMap:
                 a = np.zeros(3, np.int64)
                 b = self._dims.copy()
                 a[axis], b[axis] = s0, s1
-                _clear_storage(self._hits, self._passes, self._cdir, self._pool, self._dims,
-                               a, b)
+                _clear_storage(self._hits, self._passes, self._cdir, self._pool,
+                               self._row_part, self._dims, a, b)
         if self._used.any():
-            _compact_cold(self._cdir, self._pool, self._used, self._dims)
+            _compact_cold(self._cdir, self._pool, self._used, self._row_part, self._dims)
         self._place(new, delta=delta, old_lo=old_lo)
         entered = int(np.prod(n)) - int(np.prod(n - np.abs(delta)))
         return entered
@@ -457,15 +463,14 @@ class DensityMap:
         old_dirty = self._dirty_tiles() if delta is not None else np.zeros((0, 2), np.int64)
         self.lo = np.asarray(lo, np.int64).copy()
         # each part's storage y-range as (at most two) global y intervals inside the window
-        self._yint = np.zeros((PARTS, 2, 2), np.int64)
+        self._yint = np.zeros((self._nparts, 2, 2), np.int64)
         my = int(self._dims[1])
-        half = my // PARTS
         base = int(self.lo[1]) - int(self.lo[1]) % my
         wy0, wy1 = int(self.lo[1]), int(self.lo[1] + self._n[1])
-        for part in range(PARTS):
+        for part in range(self._nparts):
             for rep in range(2):
-                a = base + rep * my + part * half
-                b = a + half
+                a = base + rep * my + int(self._row_start[part]) * BRICK
+                b = base + rep * my + int(self._row_start[part + 1]) * BRICK
                 self._yint[part, rep] = (max(a, wy0), max(min(b, wy1), max(a, wy0)))
         # the linear-storage share of every window index per axis (see raytrace._trace_part)
         self._tables = _offset_tables(self.lo, self._n, self._dims)
@@ -473,7 +478,7 @@ class DensityMap:
         self._dirty_lo = self.lo[:2] // tv
         klast = (self.hi[:2] - 1) // tv
         self._dirty = np.zeros(tuple(int(v) for v in klast - self._dirty_lo + 1), np.uint8)
-        self._dirty_parts = _part_records(self._dirty.shape)
+        self._dirty_parts = _part_records(self._nparts, self._dirty.shape)
         if len(old_dirty):
             rel = old_dirty - self._dirty_lo
             keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
@@ -513,7 +518,7 @@ class DensityMap:
         klast = (self.lo[:2] + self._n[:2] - 1) // tile_vox
         self._dirty = np.full(tuple(int(v) for v in klast - self._dirty_lo + 1),
                               0 if first else 1, np.uint8)
-        self._dirty_parts = _part_records(self._dirty.shape)
+        self._dirty_parts = _part_records(self._nparts, self._dirty.shape)
 
     def _dirty_tiles(self) -> np.ndarray:
         idx = np.argwhere(self._dirty != 0).astype(np.int64)
@@ -545,6 +550,11 @@ class DensityMap:
             raise ConfigError(f'shape must be three non-negative integers, got {shape!r}')
         return q_lo.astype(np.int64), q_n.astype(np.int64)
 
+    @staticmethod
+    def _read_chunks(size: int) -> int:
+        # threads only pay for themselves on large reads (the tiler's full-map reads)
+        return 8 if size >= 1 << 20 else 1
+
     def counts(self, lo: Sequence[int] | None = None,
                shape: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Hit and pass counts of a box of the global lattice, in world (x, y, z) order.
@@ -560,11 +570,13 @@ class DensityMap:
         out_h = np.zeros(tuple(q_n), np.uint32)
         out_p = np.zeros(tuple(q_n), np.uint32)
         if out_h.size:
-            _gather_hot(self._hits, self._passes, self._dims, self.lo, self._n, q_lo, q_n,
-                        out_h, out_p)
+            chunks = self._read_chunks(out_h.size)
+            run_parts(_gather_hot, chunks, (chunks, self._hits, self._passes, self._dims,
+                                            self.lo, self._n, q_lo, q_n, out_h, out_p),
+                      self.parallel)
             if self._used.any():
-                _gather_cold(self._cdir, self._pool, self._dims, self.lo, self._n, q_lo, q_n,
-                             out_h, out_p)
+                _gather_cold(self._cdir, self._pool, self._row_part, self._dims, self.lo,
+                             self._n, q_lo, q_n, out_h, out_p)
         return out_h, out_p
 
     def density(self, lo: Sequence[int] | None = None,
@@ -580,8 +592,9 @@ class DensityMap:
             return ((hf + 1.0) / (hf + p + 2.0)).astype(np.float32)
         out = np.full(tuple(q_n), 0.5, np.float32)
         if out.size:
-            _density_hot(self._hits, self._passes, self._dims, self.lo, self._n, q_lo, q_n,
-                         out)
+            chunks = self._read_chunks(out.size)
+            run_parts(_density_hot, chunks, (chunks, self._hits, self._passes, self._dims,
+                                             self.lo, self._n, q_lo, q_n, out), self.parallel)
         return out
 
     def observed(self, lo: Sequence[int] | None = None,
@@ -606,10 +619,10 @@ class DensityMap:
                 f'{hi_m.round(3).tolist()}] m, {self.nbytes / 1e6:.1f} MB)')
 
 
-def _part_records(shape: tuple[int, int]) -> np.ndarray:
+def _part_records(nparts: int, shape: tuple[int, int]) -> np.ndarray:
     """One dirty-tile record per part, 64 bytes apart so the threads never share a line."""
     pad = 64 // max(shape[1], 1) + 1
-    return np.zeros((PARTS, shape[0] + pad, shape[1]), np.uint8)
+    return np.zeros((nparts, shape[0] + pad, shape[1]), np.uint8)
 
 
 def _offset_tables(lo: np.ndarray, n: np.ndarray, dims: np.ndarray

@@ -31,7 +31,9 @@ atomics and never race.
 """
 from __future__ import annotations
 
+import itertools
 import math
+import threading
 from dataclasses import dataclass, fields
 
 import numba as nb
@@ -45,10 +47,11 @@ __all__ = [
     'MAX_LATTICE_COORD',
     'SORT_TILE',
     'prepare_rays',
+    'run_parts',
     'trace_rays',
 ]
 
-PARTS = 2  # storage slabs along y, one per thread (works with NUMBA_NUM_THREADS=1 too)
+PARTS = 4  # storage slabs along y; threads take them one at a time (NUMBA_NUM_THREADS=1 too)
 BRICK = 4  # edge of a storage brick in voxels; 4^3 uint8 = one 64-byte cache line
 COUNT_MAX = 65535  # hits and passes saturate here (hot low byte + cold high byte)
 # Rays with a coordinate beyond this many voxels from the lattice origin (5e10 m at 5 cm) are
@@ -539,30 +542,75 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
             tables[2], hits, passes, cdir, pool, used, resume, dirty, dirty_lo, tile_vox,
             counters)
     nparts = yint.shape[0]
-    if parallel and nb.get_num_threads() > 1 and THREADING == 'prange':
+    if parallel and THREADING == 'prange' and nb.get_num_threads() > 1:
         _trace_all(*args)
-    elif parallel and nb.get_num_threads() > 1:
-        pool_ = _executor()
-        futures = [pool_.submit(_trace_part, part, *args) for part in range(1, nparts)]
-        _trace_part(0, *args)
-        for f in futures:
-            f.result()
     else:
-        for part in range(nparts):
-            _trace_part(part, *args)
+        run_parts(_trace_part, nparts, args, parallel)
 
 
-# How the parts of a batch run in parallel: 'threads' (the second part on a Python thread, the
-# kernel releases the GIL) or 'prange' (numba's threading layer, OpenMP here). Measured with
-# `landing-zone bench integrate`: equal on a quiet machine, but when another process holds one
-# of the two cores, OpenMP's spinning barrier costs ~16 ms per batch and the thread costs none.
+# How the parts of a batch run in parallel: 'threads' (Python threads pull parts from a shared
+# counter; the kernel releases the GIL) or 'prange' (numba's threading layer, OpenMP here).
+# Measured with `landing-zone bench integrate`: equal on a quiet machine, but when another
+# process holds one of the two cores, OpenMP's static split waits for the descheduled thread
+# (and its barrier spins), while with the counter the running thread simply takes more parts.
 THREADING = 'threads'
 _EXECUTOR = None
+
+
+class _Batch:
+    """Parts of one job handed out to whichever thread asks first."""
+
+    def __init__(self, kernel, nparts: int, args: tuple) -> None:
+        self.kernel = kernel
+        self.args = args
+        self.nparts = nparts
+        self.next = itertools.count()  # next() on a count is atomic under the GIL
+        self.lock = threading.Lock()
+        self.finished = 0
+        self.all_done = threading.Event()
+        self.error: BaseException | None = None
+
+    def work(self) -> None:
+        while True:
+            part = next(self.next)
+            if part >= self.nparts:
+                return
+            try:
+                self.kernel(part, *self.args)
+            except BaseException as err:  # surfaced in the caller's thread
+                self.error = err
+            with self.lock:
+                self.finished += 1
+                if self.finished == self.nparts:
+                    self.all_done.set()
+
+
+def run_parts(kernel, nparts: int, args: tuple, parallel: bool = True) -> None:
+    """Call ``kernel(part, *args)`` for every part, on up to numba's number of threads.
+
+    The kernel must be compiled with ``nogil=True`` and parts must not write the same memory.
+    Threads (the caller's included) take the next part from a shared counter, so a thread the
+    OS holds back does not hold up the others: a helper that starts late finds nothing left.
+    """
+    threads = min(nb.get_num_threads(), nparts) if parallel else 1
+    if threads <= 1:
+        for part in range(nparts):
+            kernel(part, *args)
+        return
+    batch = _Batch(kernel, nparts, args)
+    pool = _executor()
+    for _ in range(threads - 1):
+        pool.submit(batch.work)
+    batch.work()
+    batch.all_done.wait()
+    if batch.error is not None:
+        raise batch.error
 
 
 def _executor():
     global _EXECUTOR
     if _EXECUTOR is None:
         from concurrent.futures import ThreadPoolExecutor
-        _EXECUTOR = ThreadPoolExecutor(max_workers=PARTS - 1, thread_name_prefix='raytrace')
+        _EXECUTOR = ThreadPoolExecutor(max_workers=max(nb.config.NUMBA_NUM_THREADS - 1, 1),
+                                       thread_name_prefix='raytrace')
     return _EXECUTOR
