@@ -129,6 +129,7 @@ class Assessment:
         observed_fraction: (T,) float32 observed share of each tile's cube.
         n_returns: (T,) int64 returns in each tile's column.
         sites: landing-site candidates, best first.
+        footprint_radius: radius of the vehicle footprint the sites were found for [m].
         stamp: time [s] of the newest cloud integrated before this assessment, if given.
         reassessed: tiles re-extracted in this pass (the others kept their results).
         seconds: wall time of this pass [s].
@@ -146,6 +147,7 @@ class Assessment:
     observed_fraction: np.ndarray
     n_returns: np.ndarray
     sites: list[LandingSite] = field(default_factory=list)
+    footprint_radius: float = 0.0
     stamp: float | None = None
     reassessed: int = 0
     seconds: float = 0.0
@@ -470,7 +472,8 @@ class Assessor:
             ground_z=st.ground_z.ravel().copy(), p_safe=st.p_safe.ravel().copy(),
             confidence=st.confidence.ravel().copy(),
             observed_fraction=st.observed_fraction.ravel().copy(),
-            n_returns=st.n_returns.ravel().copy(), sites=sites, stamp=stamp)
+            n_returns=st.n_returns.ravel().copy(), sites=sites,
+            footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp)
 
     @property
     def last(self) -> Assessment | None:

@@ -30,11 +30,14 @@ for every point of a dropped cloud, plus ``nonfinite`` (NaN/Inf rows) and ``dege
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
+import os
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -43,8 +46,10 @@ from landing_zone.errors import ConfigError, InvalidCloudError, InvalidPoseError
 
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment, Assessor
+    from landing_zone.config import AssessorConfig
 
-__all__ = ['StreamConfig', 'Stream', 'CLOUD_REASONS', 'POINT_REASONS']
+__all__ = ['StreamConfig', 'Stream', 'CLOUD_REASONS', 'POINT_REASONS', 'read_params_file',
+           'configs_from_flat']
 
 NS = 1_000_000_000
 CLOUD_REASONS = ('malformed', 'wrong_frame', 'out_of_order', 'too_old', 'no_pose', 'queue_full')
@@ -136,6 +141,9 @@ class Stream:
         self._integrate_times: collections.deque[tuple[float, int]] = \
             collections.deque(maxlen=50)
         self.on_drop: Callable[[str, str], None] | None = None  # (reason, message) hook
+        # called after each integration with (stamp_ns, xyz, origin): replay keeps a top view
+        self.on_integrate: Callable[[int, np.ndarray, np.ndarray], None] | None = None
+        self.assessed_stamp_ns: int | None = None  # newest cloud stamp in the last pass
 
     # -- poses ------------------------------------------------------------------------------
 
@@ -272,9 +280,11 @@ class Stream:
         self.clouds += 1
         self.points += st.returns - st.dropped
         self._integrate_times.append((self.clock(), int(st.returns)))
-        self._last_integrated_ns = cloud.stamp_ns
+        if self.on_integrate is not None:
+            self.on_integrate(cloud.stamp_ns, cloud.xyz, origin)
         period_ns = int(round(self.config.assessment_period * NS))
         with self._lock:
+            self._last_integrated_ns = cloud.stamp_ns
             if self._first_ns is None:
                 self._first_ns = cloud.stamp_ns
                 self._next_due_ns = cloud.stamp_ns + period_ns
@@ -314,6 +324,7 @@ class Stream:
         """Run one assessment pass now (clears :meth:`due`) and record its latency."""
         with self._lock:
             self._due = False
+            self.assessed_stamp_ns = self._last_integrated_ns
             oldest = self._oldest_unassessed
             self._oldest_unassessed = None
             self._unassessed = 0
@@ -377,6 +388,93 @@ class Stream:
         for reason in POSE_REASONS:
             out[f'dropped poses: {reason}'] = str(self.dropped_poses.get(reason, 0))
         return out
+
+
+def read_params_file(path: str | os.PathLike[str], node: str = 'assessor') -> dict[str, Any]:
+    """The parameters of one node in a ROS 2 parameters file, as dotted names.
+
+    The file has the standard layout (``<node>: ros__parameters: {...}``, nested sections
+    flattened with dots as rcl does, or ``/**`` for every node), so the node (``--ros-args
+    --params-file``) and replay (``--params``) read the same file.
+
+    Raises:
+        ConfigError: the file is missing, not YAML, or has no parameters for ``node``.
+    """
+    import yaml
+
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text(encoding='utf-8'))
+    except OSError as err:
+        raise ConfigError(f'cannot read parameters file {p}: {err.strerror}') from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f'{p} is not valid YAML: {" ".join(str(err).split())}') from err
+    flat: dict[str, Any] = {}
+    found = False
+    for key in ('/**', node, '/' + node):
+        section = doc.get(key) if isinstance(doc, dict) else None
+        params = section.get('ros__parameters') if isinstance(section, dict) else None
+        if isinstance(params, dict):
+            found = True
+            _flatten(params, '', flat)
+    if not found:
+        raise ConfigError(f'{p} has no "{node}: ros__parameters:" section')
+    return flat
+
+
+def _flatten(tree: dict[str, Any], prefix: str, out: dict[str, Any]) -> None:
+    for key, value in tree.items():
+        name = f'{prefix}{key}'
+        if isinstance(value, dict):
+            _flatten(value, name + '.', out)
+        else:
+            out[name] = value
+
+
+def configs_from_flat(flat: dict[str, Any]) -> tuple[AssessorConfig, StreamConfig,
+                                                     dict[str, Any]]:
+    """Split dotted parameters into the pipeline's config, the stream's and the rest.
+
+    ``region_center`` (empty or two numbers) becomes ``AssessorConfig.center``; names of
+    :class:`StreamConfig` fields go to the stream config; names :meth:`AssessorConfig.to_flat`
+    knows go to the pipeline; anything else (front-end settings such as ``qos_depth``) is
+    returned as it is.
+
+    Raises:
+        ConfigError: a value of the wrong type or out of range.
+    """
+    from landing_zone.config import AssessorConfig
+
+    known = set(AssessorConfig().to_flat())
+    stream_fields = {f.name: f for f in dataclasses.fields(StreamConfig)}
+    core: dict[str, Any] = {}
+    stream = StreamConfig()
+    rest: dict[str, Any] = {}
+    for name, value in flat.items():
+        if name in known:
+            core[name] = value
+        elif name in stream_fields:
+            current = getattr(stream, name)
+            try:
+                setattr(stream, name, type(current)(value))
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f'{name} must be a {type(current).__name__}, got '
+                                  f'{value!r}') from err
+        elif name == 'region_center':
+            center = list(value or [])
+            if len(center) not in (0, 2):
+                raise ConfigError(f'region_center must be empty or two numbers, got {value!r}')
+            core['center'] = [float(c) for c in center] if center else None
+        else:
+            rest[name] = value
+    try:
+        cfg = AssessorConfig.from_flat(core)
+    except (TypeError, ValueError) as err:
+        if isinstance(err, ConfigError):
+            raise
+        raise ConfigError(f'bad parameter value: {err}') from err
+    stream.validate()
+    return cfg, stream, rest
 
 
 def _declared_points(msg: Any) -> int:

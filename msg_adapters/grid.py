@@ -220,10 +220,15 @@ def tile_colors(p_safe: np.ndarray) -> np.ndarray:
     return rgba
 
 
-def markers(assessment: Assessment, stamp_ns: int, footprint_radius: float,
+def markers(assessment: Assessment, stamp_ns: int, footprint_radius: float | None = None,
             types: MessageTypes | Typestore | str = 'rclpy') -> Any:
-    """A ``visualization_msgs/MarkerArray``: clear, the coloured tiles, one disc per site."""
+    """A ``visualization_msgs/MarkerArray``: clear, the coloured tiles, one disc per site.
+
+    The discs have the footprint's radius (default the assessment's ``footprint_radius``).
+    """
     types = as_message_types(types)
+    if footprint_radius is None:
+        footprint_radius = assessment.footprint_radius
     header = make_header(stamp_ns, assessment.frame_id, types)
     ts = float(assessment.tile_size)
     out = [build(types, 'visualization_msgs/msg/Marker', header=header, ns='',

@@ -1,0 +1,326 @@
+"""Bag front end: run the node's pipeline offline on a recorded bag (``landing-zone replay``).
+
+The bag's clouds and poses go, in log-time order, through the same :class:`~landing_zone.stream.
+Stream` and :class:`~landing_zone.assessor.Assessor` the node uses. Each assessment is written
+into the output bag at the stamp of the newest cloud it includes (the moment the node would
+have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/safety_cloud``,
+``/assessor/landing_sites``, ``/assessor/markers``, ``/diagnostics``); the final state goes to
+REPORT.json (../shared/CONTRACT.md §3) and, optionally, a PNG of the safety map over a top view
+of the returns.
+
+Everything is deterministic except the wall-time figures (``stats.seconds`` and the rates and
+latencies in ``/diagnostics``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from landing_zone.errors import BagError, ConfigError
+
+if TYPE_CHECKING:
+    from landing_zone.assessor import Assessment
+    from landing_zone.config import AssessorConfig
+    from landing_zone.stream import Stream, StreamConfig
+
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME']
+
+NODE_NAME = 'assessor'
+POINTS_TYPE = 'sensor_msgs/msg/PointCloud2'
+POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
+# Returns kept for the PNG's top view: every TOP_VIEW_STRIDE-th return, at most TOP_VIEW_MAX.
+TOP_VIEW_STRIDE = 4
+TOP_VIEW_MAX = 400_000
+
+
+def output_topics(node: str = NODE_NAME) -> dict[str, str]:
+    """Output topic -> message type, as the node named ``node`` publishes them."""
+    from msg_adapters.grid import DIAGNOSTICS_TYPE, OUTPUT_TYPES
+
+    out = {f'/{node}/{name}': msgtype for name, msgtype in OUTPUT_TYPES.items()}
+    out['/diagnostics'] = DIAGNOSTICS_TYPE
+    return out
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced.
+
+    Attributes:
+        assessment: the final state of the tiles.
+        stats: the report's counters (clouds, points, dropped_points, seconds, ...).
+        bag_seconds: stamp-time span of the clouds integrated [s].
+        seconds: wall time of the replay [s].
+        assessments: assessment passes written to the output bag.
+        top_view: (N, 3) float32 subsample of the returns (for the PNG).
+    """
+
+    assessment: Assessment
+    stats: dict[str, Any]
+    bag_seconds: float
+    seconds: float
+    assessments: int
+    top_view: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+
+    @property
+    def realtime_factor(self) -> float:
+        """Bag time replayed per second of wall time (inf for an empty bag)."""
+        return self.bag_seconds / self.seconds if self.seconds > 0 else math.inf
+
+
+class _Outputs:
+    """Writes each assessment's messages into the output bag."""
+
+    def __init__(self, writer: Any) -> None:
+        from msg_adapters import MessageTypes
+
+        self.writer = writer
+        self.types = MessageTypes.rosbags(writer.types) if writer is not None else None
+        self.topics = output_topics()
+        if writer is not None:
+            for topic, msgtype in self.topics.items():
+                writer.add_topic(topic, msgtype)
+
+    def write(self, assessment: Assessment, stream: Stream, stamp_ns: int) -> None:
+        from msg_adapters import grid
+
+        if self.writer is None:
+            return
+        t = self.types
+        base = f'/{NODE_NAME}'
+        self.writer.write(f'{base}/safety_grid', stamp_ns,
+                          grid.safety_grid(assessment, stamp_ns, t))
+        self.writer.write(f'{base}/safety_cloud', stamp_ns,
+                          grid.safety_cloud(assessment, stamp_ns, t))
+        self.writer.write(f'{base}/landing_sites', stamp_ns,
+                          grid.landing_site_poses(assessment, stamp_ns, t))
+        self.writer.write(f'{base}/markers', stamp_ns,
+                          grid.markers(assessment, stamp_ns, types=t))
+        self.writer.write('/diagnostics', stamp_ns,
+                          grid.diagnostics(stream.diagnostics(), stamp_ns, types=t))
+
+
+def _check_topics(bag: Path, points_topic: str, pose_topic: str) -> None:
+    from landing_zone.bagio import bag_topics
+
+    topics = bag_topics(bag)
+    for topic, want in ((points_topic, POINTS_TYPE), (pose_topic, POSE_TYPE)):
+        if topic not in topics:
+            raise BagError(f'{bag} lacks topic {topic} (it has '
+                           f'{", ".join(sorted(topics)) or "no topics"}); choose with '
+                           '--points-topic / --pose-topic')
+        if topics[topic] != want:
+            raise BagError(f'{bag}: topic {topic} carries {topics[topic] or "an unknown type"}, '
+                           f'expected {want}')
+
+
+def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+           report: str | os.PathLike[str] | None = None,
+           png: str | os.PathLike[str] | None = None, *,
+           points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose',
+           model: str | os.PathLike[str] | None = None,
+           center: Sequence[float] | None = None,
+           config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
+           progress: bool = True, labels: str | os.PathLike[str] | None = None
+           ) -> ReplayResult:
+    """Assess a recorded flight as the node would, writing its outputs.
+
+    Args:
+        bag: ROS 2 bag (directory, .mcap or .db3) or ROS 1 .bag with the clouds and poses.
+        out: output bag (.mcap file, or a directory) for the node's topics; None: not written.
+        report: REPORT.json path; None: not written.
+        png: PNG of the final safety map; None: not drawn.
+        points_topic: topic of the registered clouds (sensor_msgs/PointCloud2).
+        pose_topic: topic of the sensor poses (geometry_msgs/PoseStamped).
+        model: model file; default the config's, else the shipped model.
+        center: (x, y) of a fixed region of interest; default: follow the sensor.
+        config: the pipeline's configuration; default AssessorConfig().
+        stream_config: the stream's timing; default StreamConfig().
+        progress: show a tqdm progress bar (on a terminal).
+        labels: SITE.labels.json; when given, the PNG marks the true obstacles.
+
+    Returns:
+        A :class:`ReplayResult`.
+
+    Raises:
+        BagError: the bag is missing, unreadable, corrupt, or lacks the topics.
+        ModelError: the model is missing or invalid.
+        ConfigError: a bad configuration or center.
+    """
+    from tqdm import tqdm
+
+    from landing_zone.assessor import Assessor
+    from landing_zone.bagio import BagWriter, read_messages
+    from landing_zone.stream import Stream
+
+    t_start = time.perf_counter()
+    bag = Path(bag)
+    _check_topics(bag, points_topic, pose_topic)
+    if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
+        raise ConfigError(f'center must be two finite numbers, got {center!r}')
+    assessor = Assessor(config, center=center, model=model)
+    stream = Stream(assessor, stream_config)
+    kept: list[np.ndarray] = []
+
+    def keep(_: int, xyz: np.ndarray, __: np.ndarray) -> None:
+        kept.append(np.asarray(xyz[::TOP_VIEW_STRIDE], np.float32))
+
+    stream.on_integrate = keep
+    writer = BagWriter(out, overwrite=True) if out is not None else None
+    passes = 0
+    last_ns = 0
+    first_cloud_ns: int | None = None
+    last_cloud_ns: int | None = None
+    if writer is not None:
+        writer.open()
+    try:
+        outputs = _Outputs(writer)
+        bar = tqdm(read_messages(bag, [points_topic, pose_topic]), unit=' msg',
+                   desc=f'replay {bag.name}', disable=None if progress else True,
+                   mininterval=0.5, leave=False)
+        for m in bar:
+            last_ns = m.stamp_ns
+            if m.topic == pose_topic:
+                stream.add_pose_msg(m.msg)
+            else:
+                stream.add_cloud_msg(m.msg)
+            if stream.due():
+                passes += _assess_and_write(stream, outputs)
+        stream.flush()
+        if stream.unassessed or passes == 0:
+            passes += _assess_and_write(stream, outputs, fallback_ns=last_ns)
+        if writer is not None:
+            writer.close()
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    result = assessor.last
+    assert result is not None
+    if stream.clouds:
+        first_cloud_ns = stream._first_ns
+        last_cloud_ns = stream._last_integrated_ns
+    seconds = time.perf_counter() - t_start
+    stats = stream.stats()
+    stats['seconds'] = round(seconds, 3)
+    bag_seconds = ((last_cloud_ns - first_cloud_ns) / 1e9
+                   if first_cloud_ns is not None and last_cloud_ns is not None else 0.0)
+    stats['bag_seconds'] = round(bag_seconds, 3)
+    top = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
+    if len(top) > TOP_VIEW_MAX:
+        top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
+    res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
+                       seconds=seconds, assessments=passes, top_view=top)
+    if report is not None:
+        doc = result.to_report(stats)
+        doc['model'] = str(assessor.model_path) if assessor.model_path else None
+        doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
+                         for k, v in assessor.config.to_flat().items()}
+        doc['config']['region_center'] = list(assessor.config.center or [])
+        _write_json(Path(report), doc)
+    if png is not None:
+        render_png(result, top, png, labels=labels)
+    return res
+
+
+def _assess_and_write(stream: Stream, outputs: _Outputs, fallback_ns: int = 0) -> int:
+    assessment = stream.assess()
+    stamp_ns = stream.assessed_stamp_ns if stream.assessed_stamp_ns is not None else fallback_ns
+    outputs.write(assessment, stream, stamp_ns)
+    return 1
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + '.tmp')
+    try:
+        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + '\n', encoding='utf-8')
+        os.replace(tmp, path)
+    except OSError as err:
+        raise BagError(f'cannot write report {path}: {err.strerror}') from err
+
+
+def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.PathLike[str],
+               labels: str | os.PathLike[str] | None = None, title: str | None = None) -> None:
+    """The safety map over a grey top view of the returns, with the landing sites.
+
+    Tiles are coloured by P(safe) (red 0 -> green 1), unknown tiles are left clear with a grey
+    hatch; the landing sites are drawn as footprint circles numbered best first; with
+    ``labels`` (SITE.labels.json) the true obstacles' footprints are outlined in black.
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot as plt
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    ts = assessment.tile_size
+    x0, y0 = assessment.origin[0] * ts, assessment.origin[1] * ts
+    nx, ny = assessment.shape
+    extent = (x0, x0 + nx * ts, y0, y0 + ny * ts)
+    fig, ax = plt.subplots(figsize=(7.5, 7.0), dpi=110)
+    pts = np.asarray(top_view)
+    if len(pts):
+        inside = ((pts[:, 0] >= extent[0]) & (pts[:, 0] < extent[1])
+                  & (pts[:, 1] >= extent[2]) & (pts[:, 1] < extent[3]))
+        pts = pts[inside]
+    if len(pts):
+        ax.scatter(pts[:, 0], pts[:, 1], c=pts[:, 2], s=0.3, cmap='Greys_r', alpha=0.8,
+                   linewidths=0, rasterized=True)
+    p = assessment.grid(assessment.p_safe)
+    img = ax.imshow(np.ma.masked_invalid(p).T, origin='lower', extent=extent, cmap='RdYlGn',
+                    vmin=0.0, vmax=1.0, alpha=0.55, interpolation='nearest')
+    unknown = ~np.isfinite(p)
+    for i, j in zip(*np.nonzero(unknown)):
+        ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
+                               edgecolor='0.6', linewidth=0))
+    if labels is not None:
+        for ob in _obstacles(labels):
+            ax.add_patch(Polygon(ob, closed=True, fill=False, edgecolor='black', linewidth=1.2))
+    for rank, site in enumerate(assessment.sites, start=1):
+        ax.add_patch(Circle((site.x, site.y), assessment.footprint_radius, fill=False,
+                            edgecolor='tab:blue',
+                            linewidth=2.0 if rank == 1 else 1.0))
+        ax.annotate(str(rank), (site.x, site.y), color='tab:blue', ha='center', va='center',
+                    fontsize=9, weight='bold')
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect('equal')
+    ax.set_xlabel(f'x [m] ({assessment.frame_id})')
+    ax.set_ylabel('y [m]')
+    judged = int(np.isfinite(assessment.p_safe).sum())
+    ax.set_title(title or f'P(safe) per {ts:g} m tile: {judged} of {len(assessment)} judged; '
+                          'hatched: unknown')
+    fig.colorbar(img, ax=ax, label='P(safe)', shrink=0.8)
+    fig.tight_layout()
+    try:
+        fig.savefig(path)
+    except OSError as err:
+        raise BagError(f'cannot write {path}: {err.strerror}') from err
+    finally:
+        plt.close(fig)
+
+
+def _obstacles(labels: str | os.PathLike[str]) -> list[np.ndarray]:
+    """Footprint polygons (4, 2) of the obstacles of a SITE.labels.json."""
+    try:
+        doc = json.loads(Path(labels).read_text(encoding='utf-8'))
+    except (OSError, ValueError) as err:
+        raise BagError(f'cannot read labels {labels}: {err}') from err
+    out = []
+    for ob in doc.get('obstacles', []):
+        try:
+            x, y, yaw = float(ob['x']), float(ob['y']), float(ob.get('yaw', 0.0))
+            dx, dy = float(ob['size'][0]), float(ob['size'][1])
+        except (KeyError, TypeError, ValueError, IndexError):
+            continue
+        c, s = math.cos(yaw), math.sin(yaw)
+        corners = np.array([[-dx, -dy], [dx, -dy], [dx, dy], [-dx, dy]]) / 2
+        out.append(corners @ np.array([[c, s], [-s, c]]) + [x, y])
+    return out
