@@ -63,6 +63,58 @@ def bench(
     bench_mod.run(which or [], batches=batches, seed=seed)
 
 
+# --- replay -----------------------------------------------------------------------------------
+
+@app.command(help='Run the node\'s pipeline offline on a recorded bag: the node\'s output topics '
+                  'go into OUT.mcap at the stamps it would have published them, the final '
+                  'tiles into REPORT.json.\n\n'
+                  'Examples:\n\n  landing-zone replay site.mcap --out assessed.mcap '
+                  '--report report.json\n\n'
+                  '  landing-zone replay flight.bag --out a.mcap --report r.json '
+                  '--points-topic /velodyne_points --pose-topic /pose --png map.png\n\n'
+                  '  landing-zone replay site.mcap --out a.mcap --report r.json --center 10 -4')
+def replay(
+    bag: Annotated[Path, typer.Argument(
+        help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
+    out: Annotated[Path, typer.Option(help='Output bag of the node\'s topics (.mcap).')],
+    report: Annotated[Path, typer.Option(help='REPORT.json with the final tiles and sites.')],
+    points_topic: Annotated[str, typer.Option(
+        help='PointCloud2 topic (fixed frame).')] = '/lidar/points',
+    pose_topic: Annotated[str, typer.Option(
+        help='PoseStamped topic of the sensor.')] = '/lidar/pose',
+    model: Annotated[Optional[Path], typer.Option(
+        help='Model file; default the shipped one.')] = None,
+    center: Annotated[Optional[tuple[float, float]], typer.Option(
+        help='X Y of a fixed region of interest; default: the map follows the sensor.')] = None,
+    png: Annotated[Optional[Path], typer.Option(help='PNG of the final safety map.')] = None,
+    params: Annotated[Optional[Path], typer.Option(
+        help='ROS 2 parameters file (config/assessor.yaml layout) for the pipeline.')] = None,
+    labels: Annotated[Optional[Path], typer.Option(
+        help='SITE.labels.json: mark the true obstacles in the PNG.')] = None,
+) -> None:
+    from landing_zone.replay import replay as run_replay
+    from landing_zone.stream import configs_from_flat, read_params_file
+
+    config = stream_config = None
+    if params is not None:
+        config, stream_config, _ = configs_from_flat(read_params_file(params))
+    result = run_replay(bag, out, report, png, points_topic=points_topic, pose_topic=pose_topic,
+                        model=model, center=center, config=config,
+                        stream_config=stream_config, labels=labels)
+    st = result.stats
+    a = result.assessment
+    judged = int(a.known.sum())
+    print(f'replayed {st["clouds"]} clouds ({st["points"]:,} returns, {st["dropped_clouds"]} '
+          f'clouds and {st["dropped_points"]:,} returns dropped) covering '
+          f'{result.bag_seconds:.1f} s in {result.seconds:.1f} s: '
+          f'{result.realtime_factor:.1f}x real time')
+    print(f'{result.assessments} assessments; final map: {judged} of {len(a)} tiles judged, '
+          f'{len(a.sites)} landing site(s)'
+          + (f', best at ({a.sites[0].x:.1f}, {a.sites[0].y:.1f}) with P(safe) '
+             f'{a.sites[0].p_safe:.2f}' if a.sites else ''))
+    print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, turning core errors into one line and exit 2."""
     try:
