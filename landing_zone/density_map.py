@@ -232,8 +232,10 @@ class DensityMap:
     there (it never wraps). The density of a saturated voxel remains the posterior mean of the
     saturated counts, which by then is within 1.5e-5 of the exact value per extra count.
 
-    Threads: integration runs ``PARTS`` (2) threads, each owning half of the storage in y, when
-    numba has more than one thread (``NUMBA_NUM_THREADS``); otherwise the parts run in turn.
+    Threads: a batch is walked in ``raytrace.PARTS`` slabs of storage, taken by up to
+    ``numba.get_num_threads()`` threads (``NUMBA_NUM_THREADS=1``: in turn on the caller's
+    thread); batches under 2048 rays stay on the caller's thread. Counts are the same bytes
+    whichever way they ran.
 
     Attributes:
         voxel_size: edge of a voxel [m].
