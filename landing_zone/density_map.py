@@ -149,16 +149,35 @@ def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
                 out[i, j, k] = np.float32((h + 1.0) / (h + np.float64(passes[idx]) + 2.0))
 
 
+def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -> None:
+    """Zero the storage slab [s0, s1) (no wrap) of one axis in a hot array, by brick views.
+
+    Whole bricks go as contiguous runs, the partial bricks at either end plane by plane; numpy's
+    strided fill does the rest, so a 1 m shift costs a fraction of a millisecond.
+    """
+    b = dims // BRICK
+    v = arr.reshape(int(b[0]), int(b[1]), int(b[2]), BRICK, BRICK, BRICK)
+    full0 = -(-s0 // BRICK)
+    full1 = s1 // BRICK
+    planes = list(range(s0, min(s1, full0 * BRICK))) + list(range(max(full1 * BRICK, s0), s1))
+    if full1 > full0:
+        sel = [slice(None)] * 6
+        sel[axis] = slice(full0, full1)
+        v[tuple(sel)] = 0
+    else:
+        planes = list(range(s0, s1))
+    for s in planes:
+        sel = [slice(None)] * 6
+        sel[axis] = s // BRICK
+        sel[3 + axis] = s % BRICK
+        v[tuple(sel)] = 0
+
+
 @nb.njit(cache=True)
-def _clear_storage(hits, passes, cdir, pool, row_part, dims, s0, s1):
-    """Zero the counts of the storage box [s0, s1) (no wrap), cold high bytes included."""
+def _clear_cold(cdir, pool, row_part, dims, s0, s1):
+    """Zero the cold high bytes of the storage box [s0, s1) (no wrap)."""
     sy_stride = (dims[2] // BRICK) * 64
     sx_stride = (dims[1] // BRICK) * sy_stride
-    any_cold = False
-    for b in range(cdir.shape[0]):
-        if cdir[b] >= 0:
-            any_cold = True
-            break
     for sx in range(s0[0], s1[0]):
         offx = (sx >> 2) * sx_stride + (sx & 3) * 16
         for sy in range(s0[1], s1[1]):
@@ -166,13 +185,10 @@ def _clear_storage(hits, passes, cdir, pool, row_part, dims, s0, s1):
             part = row_part[sy >> 2]
             for sz in range(s0[2], s1[2]):
                 idx = base + (sz >> 2) * 64 + (sz & 3)
-                hits[idx] = 0
-                passes[idx] = 0
-                if any_cold:
-                    slot = cdir[idx >> 6]
-                    if slot >= 0:
-                        pool[part, slot, idx & 63] = 0
-                        pool[part, slot, 64 + (idx & 63)] = 0
+                slot = cdir[idx >> 6]
+                if slot >= 0:
+                    pool[part, slot, idx & 63] = 0
+                    pool[part, slot, 64 + (idx & 63)] = 0
 
 
 @nb.njit(cache=True)
@@ -448,11 +464,13 @@ class DensityMap:
             else:
                 g0, g1 = new[axis], old_lo[axis]
             for s0, s1 in _ring_ranges(g0, g1, int(self._dims[axis])):
-                a = np.zeros(3, np.int64)
-                b = self._dims.copy()
-                a[axis], b[axis] = s0, s1
-                _clear_storage(self._hits, self._passes, self._cdir, self._pool,
-                               self._row_part, self._dims, a, b)
+                _clear_hot(self._hits, self._dims, axis, s0, s1)
+                _clear_hot(self._passes, self._dims, axis, s0, s1)
+                if self._used.any():
+                    a = np.zeros(3, np.int64)
+                    b = self._dims.copy()
+                    a[axis], b[axis] = s0, s1
+                    _clear_cold(self._cdir, self._pool, self._row_part, self._dims, a, b)
         if self._used.any():
             _compact_cold(self._cdir, self._pool, self._used, self._row_part, self._dims)
         self._place(new, delta=delta, old_lo=old_lo)
