@@ -149,6 +149,37 @@ def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
                 out[i, j, k] = np.float32((h + 1.0) / (h + np.float64(passes[idx]) + 2.0))
 
 
+@nb.njit(cache=True, nogil=True)
+def _observed_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
+    """Observed flags straight from the hot bytes (valid while no cold block exists)."""
+    r0 = np.empty(3, np.int64)
+    r1 = np.empty(3, np.int64)
+    for a in range(3):
+        r0[a] = min(max(wlo[a] - qlo[a], 0), qn[a])
+        r1[a] = max(min(wlo[a] + wn[a] - qlo[a], qn[a]), r0[a])
+    sy_stride = (dims[2] // BRICK) * 64
+    sx_stride = (dims[1] // BRICK) * sy_stride
+    offy = np.empty(qn[1], np.int64)
+    offz = np.empty(qn[2], np.int64)
+    for j in range(r0[1], r1[1]):
+        s = (qlo[1] + j) % dims[1]
+        offy[j] = (s >> 2) * sy_stride + (s & 3) * 4
+    for k in range(r0[2], r1[2]):
+        s = (qlo[2] + k) % dims[2]
+        offz[k] = (s >> 2) * 64 + (s & 3)
+    z0 = r0[2]
+    z1 = r1[2]
+    span = r1[0] - r0[0]
+    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
+        s = (qlo[0] + i) % dims[0]
+        offx = (s >> 2) * sx_stride + (s & 3) * 16
+        for j in range(r0[1], r1[1]):
+            base = offx + offy[j]
+            for k in range(z0, z1):
+                idx = base + offz[k]
+                out[i, j, k] = (hits[idx] | passes[idx]) != 0
+
+
 def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -> None:
     """Zero the storage slab [s0, s1) (no wrap) of one axis in a hot array, by brick views.
 
@@ -620,8 +651,16 @@ class DensityMap:
     def observed(self, lo: Sequence[int] | None = None,
                  shape: Sequence[int] | None = None) -> np.ndarray:
         """Whether each voxel of a box was hit or passed at least once (bool)."""
-        h, p = self.counts(lo, shape)
-        return (h | p) != 0
+        q_lo, q_n = self._query(lo, shape)
+        if self._used.any():
+            h, p = self.counts(q_lo, q_n)
+            return (h | p) != 0
+        out = np.zeros(tuple(q_n), bool)
+        if out.size:
+            chunks = self._read_chunks(out.size)
+            run_parts(_observed_hot, chunks, (chunks, self._hits, self._passes, self._dims,
+                                              self.lo, self._n, q_lo, q_n, out), self.parallel)
+        return out
 
     def clear(self) -> None:
         """Forget every count (the window stays where it is)."""
