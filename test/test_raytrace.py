@@ -163,6 +163,25 @@ def test_every_ray_matches_exact_reference(shape_xy, shape_z, lo):
     assert total.integrated > 500 and total.missed > 50 and total.outside_hits > 100
 
 
+def test_real_voxel_size_far_from_the_origin_matches_reference():
+    """5 cm voxels (not dyadic) around a UTM-like position: still the exact cells of u = p / vs."""
+    cfg = MapConfig(voxel_size=0.05, size_xy=0.8, size_z=0.6, z_below=0.3)
+    center = np.array([512345.678, 4231987.123, 312.5])
+    dmap = DensityMap(cfg, center=center)
+    rng = np.random.default_rng(17)
+    n = 400
+    pts = center + rng.uniform(-0.6, 0.6, (n, 3))
+    origins = center + rng.uniform(-0.6, 0.6, (n, 3))
+    origins[: n // 2] = center + (0.1, -0.2, 5.0)  # half from a sensor far above the box
+    for i in range(n):
+        dmap.integrate(pts[i:i + 1], origins[i])
+        _, _, hit_cells, pass_cells = kernel_counts(dmap)
+        want_hit, want_pass = expected_counts(dmap, origins[i], pts[i])
+        assert (hit_cells[0] if hit_cells else None) == want_hit
+        assert pass_cells == want_pass
+        dmap.clear()
+
+
 def test_batch_equals_sum_of_single_rays_and_threads_agree():
     rng = np.random.default_rng(11)
     maps = [small_map(16, 12, (3, -6, -5), parallel=par) for par in (True, False)]
