@@ -475,6 +475,11 @@ class Assessor:
             n_returns=st.n_returns.ravel().copy(), sites=sites,
             footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp)
 
+    def invalidate(self) -> None:
+        """Judge every tile again at the next pass (after a change of the tiles' settings)."""
+        with self._map_lock:
+            self.map.mark_tile_size(self.tile_vox)
+
     @property
     def last(self) -> Assessment | None:
         """The most recent assessment, if any."""

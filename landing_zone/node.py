@@ -1,2 +1,340 @@
-def main():
-    print('node')
+"""The ROS 2 front end: the ``assessor`` node (``ros2 run landing_zone assessor``).
+
+Topics (../shared/CONTRACT.md §1): registered clouds on ``points`` and the sensor pose on
+``sensor_pose`` in (sensor-data QoS); ``~/safety_grid``, ``~/safety_cloud``, ``~/landing_sites``,
+``~/markers`` out (reliable, transient local, depth 1, so a planner that joins late gets the
+latest), and ``/diagnostics``.
+
+The node is a thin adapter over :class:`~landing_zone.stream.Stream` and
+:class:`~landing_zone.assessor.Assessor`, the same objects ``landing-zone replay`` drives:
+
+* the clouds and poses are integrated in their subscription callbacks (one mutually exclusive
+  callback group, so they run in turn);
+* assessment runs in a timer of a second group on a :class:`MultiThreadedExecutor`, so
+  integration never waits for the network; the map's lock is held only while rays are added or
+  counts are read;
+* overload is bounded and counted: the DDS history keeps ``qos_depth`` clouds (older ones are
+  dropped by DDS and counted from gaps in the publication sequence numbers as ``overrun``),
+  at most ``max_pending`` clouds wait for their pose, and due assessments never queue up (a late
+  pass takes in everything integrated meanwhile);
+* bad input (malformed clouds, NaN/Inf, wrong frame, out-of-order stamps, no pose yet) is
+  counted by reason, reported in ``/diagnostics`` and warned about at most every
+  ``warn_period`` seconds per reason; the map is never touched by it.
+
+Parameters are the dotted names of :meth:`AssessorConfig.to_flat` (``map.voxel_size``, ...) plus
+the stream's timing (:class:`~landing_zone.stream.StreamConfig`) and a few of the node's own,
+each declared with a :class:`ParameterDescriptor`; ``config/assessor.yaml`` lists them all.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                ParameterType, SetParametersResult)
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.exceptions import ParameterException, ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
+
+from landing_zone.config import AssessorConfig
+from landing_zone.errors import ConfigError, LandingZoneError
+from landing_zone.stream import NS, Stream, StreamConfig, configs_from_flat
+
+__all__ = ['AssessorNode', 'PARAMETERS', 'main']
+
+NODE_NAME = 'assessor'
+
+_F, _I = 'float', 'int'
+# name -> (description, range (lo, hi) or None, read_only). Every parameter has an entry;
+# read-only ones size the map, the tiles or the network, which cannot change under a live map.
+PARAMETERS: dict[str, tuple[str, tuple[float, float] | None, bool]] = {
+    'frame_id': ('Fixed frame of the clouds, poses and outputs.', None, True),
+    'map.voxel_size': ('Edge of a cubic voxel [m]; must match the model.', (0.005, 1.0), True),
+    'map.size_xy': ('Extent of the scrolling map in x and y [m].', (1.0, 400.0), True),
+    'map.size_z': ('Vertical extent of the map [m].', (0.5, 100.0), True),
+    'map.z_below': ('How far the map reaches below the ground under the sensor [m].',
+                    (0.0, 100.0), True),
+    'map.recenter_distance': ('Follow mode scrolls when the sensor is this far from the '
+                              'centre [m].', (0.0, 200.0), False),
+    'tiles.tile_size': ('Edge of a square tile [m]; a whole number of voxels.', (0.05, 10.0),
+                        True),
+    'tiles.padding': ('Voxels of context around a tile\'s cube; must match the model.',
+                      (0, 64), True),
+    'tiles.ground_quantile': ('Quantile of the column minima taken as the tile\'s ground.',
+                              (0.0, 0.99), False),
+    'tiles.occupied_density': ('Density from which a voxel counts as occupied (ground).',
+                               (0.5, 0.99), False),
+    'tiles.min_observed_fraction': ('Tiles with less of their cube observed are unknown.',
+                                    (0.0, 1.0), False),
+    'tiles.min_returns': ('Tiles with fewer returns in their column are unknown.',
+                          (0, 1_000_000), False),
+    'model.path': ('Model file (.safetensors); empty: the shipped model.', None, True),
+    'model.device': ('Inference device: cpu, cuda or cuda:N.', None, True),
+    'model.batch_size': ('Tiles per forward pass.', (1, 65536), False),
+    'landing_sites.footprint_radius': ('Radius of the vehicle\'s footprint [m].', (0.1, 50.0),
+                                       False),
+    'landing_sites.top_k': ('Landing-site candidates published, best first.', (0, 100), False),
+    'landing_sites.min_p_safe': ('Candidates below this P(all tiles safe) are left out.',
+                                 (0.0, 1.0), False),
+    'assessment_period': ('Stamp time between assessments [s].', (0.01, 60.0), False),
+    'pose_tolerance': ('How far a cloud may lie outside the poses\' span [s].', (0.0, 10.0),
+                       False),
+    'pose_wait': ('How long (stamp time) a cloud may wait for its pose [s].', (0.0, 10.0),
+                  False),
+    'max_pending': ('Clouds that may wait for their pose at once.', (1, 1000), False),
+    'pose_history': ('Span of poses kept for interpolation [s].', (0.1, 3600.0), True),
+    'region_center': ('X Y of a fixed region of interest; unset: the map follows the sensor.',
+                      None, True),
+    'qos_depth': ('History depth of the points and pose subscriptions.', (1, 1000), True),
+    'diagnostics_period': ('Seconds between /diagnostics messages.', (0.1, 60.0), True),
+    'idle_flush': ('After this long without input [s], waiting clouds are settled and the '
+                   'last ones assessed.', (0.05, 60.0), False),
+    'warn_period': ('Least seconds between two warnings of one kind.', (0.0, 3600.0), False),
+}
+# The node's own parameters and their defaults (region_center has no default: unset = follow).
+NODE_DEFAULTS: dict[str, Any] = {'qos_depth': 5, 'diagnostics_period': 1.0, 'idle_flush': 1.0,
+                                 'warn_period': 5.0}
+# How often the assessment timer looks whether a pass is due [s] (wall time).
+TICK = 0.02
+
+
+def _descriptor(name: str, value: Any) -> ParameterDescriptor:
+    description, bounds, read_only = PARAMETERS[name]
+    d = ParameterDescriptor(name=name, description=description, read_only=read_only)
+    if bounds is not None and isinstance(value, float):
+        d.floating_point_range = [FloatingPointRange(from_value=float(bounds[0]),
+                                                     to_value=float(bounds[1]), step=0.0)]
+    elif bounds is not None and isinstance(value, int) and not isinstance(value, bool):
+        d.integer_range = [IntegerRange(from_value=int(bounds[0]), to_value=int(bounds[1]),
+                                        step=1)]
+    return d
+
+
+def default_parameters() -> dict[str, Any]:
+    """Every parameter with a default, by name (the pipeline's, the stream's, the node's)."""
+    import dataclasses
+
+    out = dict(AssessorConfig().to_flat())
+    out.pop('center', None)
+    for f in dataclasses.fields(StreamConfig):
+        out[f.name] = getattr(StreamConfig(), f.name)
+    out.update(NODE_DEFAULTS)
+    return out
+
+
+class AssessorNode(Node):
+    """The ``assessor`` node; see the module docstring.
+
+    Raises (from the constructor):
+        ModelError: the model file is missing or invalid.
+        ConfigError: parameters out of range or inconsistent.
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        defaults = default_parameters()
+        self.declare_parameters('', [(name, value, _descriptor(name, value))
+                                     for name, value in defaults.items()])
+        self.declare_parameter('region_center', Parameter.Type.DOUBLE_ARRAY,
+                               ParameterDescriptor(
+                                   name='region_center', type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+                                   description=PARAMETERS['region_center'][0], read_only=True))
+        self._names = list(defaults) + ['region_center']
+        config, stream_config, rest = configs_from_flat(self._flat())
+        self.settings = rest
+        # the model loads here: a missing or broken one stops the node before any topic exists
+        from landing_zone.assessor import Assessor
+        self.assessor = Assessor(config)
+        self.stream = Stream(self.assessor, stream_config)
+        self.stream.on_drop = self._warn
+        self._ingest_lock = threading.Lock()  # the stream's input side: callbacks and flush
+        self._last_input = time.monotonic()
+        self._last_seq: int | None = None
+        self._warners: dict[str, Any] = {}
+        self._reported_drops = 0
+        self.add_on_set_parameters_callback(self._check_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        ingest = MutuallyExclusiveCallbackGroup()
+        assess = MutuallyExclusiveCallbackGroup()
+        diag = MutuallyExclusiveCallbackGroup()
+        from geometry_msgs.msg import PoseStamped
+        from sensor_msgs.msg import PointCloud2
+
+        sensor_qos = QoSProfile(depth=int(rest['qos_depth']),
+                                history=HistoryPolicy.KEEP_LAST,
+                                reliability=qos_profile_sensor_data.reliability,
+                                durability=qos_profile_sensor_data.durability)
+        self.create_subscription(PointCloud2, 'points', self._on_cloud, sensor_qos,
+                                 callback_group=ingest)
+        self.create_subscription(PoseStamped, 'sensor_pose', self._on_pose, sensor_qos,
+                                 callback_group=ingest)
+        latched = QoSProfile(depth=1, history=HistoryPolicy.KEEP_LAST,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        from diagnostic_msgs.msg import DiagnosticArray
+        from geometry_msgs.msg import PoseArray
+        from nav_msgs.msg import OccupancyGrid
+        from visualization_msgs.msg import MarkerArray
+        self._pub_grid = self.create_publisher(OccupancyGrid, '~/safety_grid', latched)
+        self._pub_cloud = self.create_publisher(PointCloud2, '~/safety_cloud', latched)
+        self._pub_sites = self.create_publisher(PoseArray, '~/landing_sites', latched)
+        self._pub_markers = self.create_publisher(MarkerArray, '~/markers', latched)
+        self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_timer(TICK, self._tick, callback_group=assess)
+        self.create_timer(float(rest['diagnostics_period']), self._publish_diagnostics,
+                          callback_group=diag)
+        mode = ('following the sensor' if config.center is None
+                else f'fixed at ({config.center[0]:g}, {config.center[1]:g})')
+        self.get_logger().info(
+            f'assessing {config.map.size_xy:g} m of {config.tiles.tile_size:g} m tiles in '
+            f'frame {config.frame_id!r}, {mode}; model {self.assessor.model_path} '
+            f'({self.assessor.model.config.spec})')
+
+    # -- parameters -------------------------------------------------------------------------
+
+    def _flat(self, override: dict[str, Any] | None = None) -> dict[str, Any]:
+        flat = {}
+        for name in self._names:
+            try:
+                flat[name] = self.get_parameter(name).value
+            except ParameterUninitializedException:
+                flat[name] = None
+        flat.update(override or {})
+        return flat
+
+    def _check_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Refuse a change that would give an invalid configuration (ranges are checked by rcl
+        from the descriptors already; this checks consistency across parameters)."""
+        try:
+            configs_from_flat(self._flat({p.name: p.value for p in params}))
+        except ConfigError as err:
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params: list[Parameter]) -> None:
+        config, stream_config, rest = configs_from_flat(self._flat())
+        a = self.assessor
+        # only writable parameters get here; copy every section mechanically
+        for section in ('map', 'tiles', 'model', 'landing_sites'):
+            live, new = getattr(a.config, section), getattr(config, section)
+            for name, value in vars(new).items():
+                setattr(live, name, value)
+        for name, value in vars(stream_config).items():
+            setattr(self.stream.config, name, value)
+        self.stream.poses_buffer.tolerance_ns = int(round(stream_config.pose_tolerance * NS))
+        self.settings.update(rest)
+        if any(p.name.startswith('tiles.') for p in params):
+            a.invalidate()  # every tile is judged again under the new thresholds
+        self.get_logger().info('parameters changed: ' + ', '.join(
+            f'{p.name}={p.value}' for p in params))
+
+    # -- input ------------------------------------------------------------------------------
+
+    def _warn(self, reason: str, message: str) -> None:
+        # one child logger per reason, so one kind of bad input does not hide another
+        logger = self._warners.get(reason)
+        if logger is None:
+            logger = self._warners[reason] = self.get_logger().get_child(reason)
+        logger.warn(message, throttle_duration_sec=float(self.settings['warn_period']))
+
+    def _on_cloud(self, msg: Any, info: Any = None) -> None:
+        self._last_input = time.monotonic()
+        seq = info.get('publication_sequence_number') if isinstance(info, dict) else None
+        if seq is not None:
+            # DDS dropped what the history could not hold; an estimate with one publisher
+            # (a restarted or second publisher resets the count instead of adding to it)
+            if self._last_seq is not None and seq > self._last_seq + 1:
+                missed = seq - self._last_seq - 1
+                self.stream.dropped_clouds['overrun'] += missed
+                self._warn('overrun', f'{missed} cloud(s) lost before the node could take '
+                                      f'them (qos_depth {self.settings["qos_depth"]})')
+            self._last_seq = seq
+        with self._ingest_lock:
+            try:
+                self.stream.add_cloud_msg(msg)
+            except LandingZoneError as err:  # the stream counts bad input; this is a backstop
+                self._warn('error', f'cloud dropped: {err}')
+
+    def _on_pose(self, msg: Any) -> None:
+        self._last_input = time.monotonic()
+        with self._ingest_lock:
+            try:
+                self.stream.add_pose_msg(msg)
+            except LandingZoneError as err:
+                self._warn('error', f'pose dropped: {err}')
+
+    # -- output -----------------------------------------------------------------------------
+
+    def _tick(self) -> None:
+        idle = time.monotonic() - self._last_input > float(self.settings['idle_flush'])
+        if idle and self.stream.pending:
+            with self._ingest_lock:
+                self.stream.flush()
+        if self.stream.due() or (idle and self.stream.unassessed):
+            result = self.stream.assess()
+            self._publish(result)
+
+    def _publish(self, result: Any) -> None:
+        from msg_adapters import grid
+
+        stamp = self.stream.assessed_stamp_ns
+        if stamp is None:
+            stamp = self.get_clock().now().nanoseconds
+        self._pub_grid.publish(grid.safety_grid(result, stamp))
+        self._pub_cloud.publish(grid.safety_cloud(result, stamp))
+        self._pub_sites.publish(grid.landing_site_poses(result, stamp))
+        self._pub_markers.publish(grid.markers(result, stamp))
+
+    def _publish_diagnostics(self) -> None:
+        from msg_adapters import grid
+
+        values = self.stream.diagnostics()
+        values['dropped clouds: overrun'] = str(self.stream.dropped_clouds.get('overrun', 0))
+        drops = int(sum(self.stream.dropped_clouds.values()))
+        new_drops = drops - self._reported_drops
+        self._reported_drops = drops
+        if self.stream.clouds == 0:
+            level, message = 'WARN', 'no cloud integrated yet'
+        elif new_drops:
+            level, message = 'WARN', f'{new_drops} cloud(s) dropped since the last report'
+        else:
+            level, message = 'OK', f'{self.stream.clouds} clouds integrated'
+        self._pub_diag.publish(grid.diagnostics(values, self.get_clock().now().nanoseconds,
+                                                name=f'{self.get_name()}: landing zone',
+                                                level=level, message=message))
+
+
+def main(args: list[str] | None = None) -> None:
+    """Entry point of ``assessor`` (talker_qos.py's shutdown idiom); exit 1 if it cannot start."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = AssessorNode()
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except (LandingZoneError, ParameterException) as err:
+        # a missing model or a bad parameter: one clear line, no traceback
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'cannot start: {err}')
+        code = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if code:
+        sys.exit(code)
+
+
+if __name__ == '__main__':
+    main()
