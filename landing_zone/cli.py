@@ -115,6 +115,37 @@ def replay(
     print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
 
 
+# --- play -------------------------------------------------------------------------------------
+
+@app.command(help='Publish a bag\'s messages over ROS 2 at the recorded rate (there is no '
+                  '`ros2 bag` in a pip-installed ROS), to drive the live `assessor` node.\n\n'
+                  'Examples:\n\n  landing-zone play site.mcap\n\n'
+                  '  landing-zone play site.mcap --rate 2 --remap /lidar/points:=/points '
+                  '--remap /lidar/pose:=/sensor_pose\n\n'
+                  '  landing-zone play flight.bag --topics /velodyne_points --wait 5')
+def play(
+    bag: Annotated[Path, typer.Argument(
+        help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag.')],
+    rate: Annotated[float, typer.Option(help='Playback speed (2.0: twice as fast).')] = 1.0,
+    topics: Annotated[Optional[list[str]], typer.Option(
+        help='Only this topic (repeat for more); default all.')] = None,
+    remap: Annotated[Optional[list[str]], typer.Option(
+        help='FROM:=TO topic rename (repeat for more).')] = None,
+    wait: Annotated[float, typer.Option(
+        help='Wait up to this many seconds for a subscriber on every topic first.')] = 0.0,
+) -> None:
+    from landing_zone.play import parse_remaps
+    from landing_zone.play import play as run_play
+
+    if not rate > 0:
+        raise typer.BadParameter(f'must be positive, got {rate}', param_hint='--rate')
+    stats = run_play(bag, rate=rate, topics=topics, remap=parse_remaps(remap),
+                     wait_subscribers=wait)
+    per = ', '.join(f'{n} on {t}' for t, n in sorted(stats.by_topic.items()))
+    print(f'published {stats.messages} messages ({per}) covering {stats.bag_seconds:.1f} s in '
+          f'{stats.seconds:.1f} s; at most {stats.late * 1000:.0f} ms late')
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console entry point: run the app, turning core errors into one line and exit 2."""
     try:
