@@ -1,0 +1,114 @@
+"""Calibration of P(safe): temperature scaling, expected calibration error, reliability bins.
+
+A net trained with dropout and weight decay ranks tiles well but its probabilities need not
+match frequencies. Temperature scaling (Guo et al., ICML 2017) divides the logits by one scalar
+``T`` fitted on held-out data by maximum likelihood; it changes no ranking (so no AUC), only how
+far from 0.5 the probabilities sit. Everything here treats "safe" (label 1) as the event whose
+probability is predicted.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.special import expit, log_expit
+
+from landing_zone.errors import ConfigError
+
+__all__ = ['Reliability', 'reliability', 'expected_calibration_error', 'fit_temperature',
+           'binary_nll']
+
+
+@dataclass
+class Reliability:
+    """Equal-width bins of predicted P(safe) over [0, 1].
+
+    Attributes:
+        edges: (B + 1,) bin edges.
+        count: (B,) predictions per bin.
+        confidence: (B,) mean predicted P(safe) per bin (NaN where empty).
+        frequency: (B,) observed share of safe tiles per bin (NaN where empty).
+    """
+
+    edges: np.ndarray
+    count: np.ndarray
+    confidence: np.ndarray
+    frequency: np.ndarray
+
+    @property
+    def ece(self) -> float:
+        """Expected calibration error: the count-weighted mean |frequency - confidence|."""
+        n = self.count.sum()
+        if n == 0:
+            return float('nan')
+        full = self.count > 0
+        gap = np.abs(self.frequency[full] - self.confidence[full])
+        return float((self.count[full] * gap).sum() / n)
+
+
+def _check(p_safe, labels) -> tuple[np.ndarray, np.ndarray]:
+    p = np.asarray(p_safe, np.float64).reshape(-1)
+    y = np.asarray(labels).reshape(-1)
+    if p.shape != y.shape:
+        raise ConfigError(f'{p.size} probabilities for {y.size} labels')
+    if not np.all(np.isfinite(p)) or np.any((p < 0) | (p > 1)):
+        raise ConfigError('probabilities must be finite and lie in [0, 1]')
+    if not np.all((y == 0) | (y == 1)):
+        raise ConfigError('labels must be 0 (unsafe) or 1 (safe)')
+    return p, y.astype(np.float64)
+
+
+def reliability(p_safe, labels, bins: int = 15) -> Reliability:
+    """Reliability diagram data: bin i holds ``edges[i] <= p < edges[i + 1]`` (the last bin
+    includes 1).
+
+    Args:
+        p_safe: (N,) predicted P(safe).
+        labels: (N,) 1 safe, 0 unsafe.
+        bins: number of equal-width bins.
+    """
+    if bins < 1:
+        raise ConfigError(f'bins must be >= 1, got {bins}')
+    p, y = _check(p_safe, labels)
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    which = np.clip(np.floor(p * bins).astype(np.int64), 0, bins - 1)
+    count = np.bincount(which, minlength=bins).astype(np.int64)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        confidence = np.bincount(which, weights=p, minlength=bins) / count
+        frequency = np.bincount(which, weights=y, minlength=bins) / count
+    return Reliability(edges, count, confidence, frequency)
+
+
+def expected_calibration_error(p_safe, labels, bins: int = 15) -> float:
+    """ECE of P(safe) with ``bins`` equal-width bins (see :class:`Reliability`)."""
+    return reliability(p_safe, labels, bins).ece
+
+
+def binary_nll(logits, labels, temperature: float = 1.0) -> float:
+    """Mean negative log-likelihood of labels under sigmoid(logits / temperature)."""
+    z = np.asarray(logits, np.float64) / temperature
+    y = np.asarray(labels, np.float64)
+    return float(-(y * log_expit(z) + (1.0 - y) * log_expit(-z)).mean())
+
+
+def fit_temperature(logits, labels, bounds: tuple[float, float] = (0.05, 20.0)) -> float:
+    """The temperature that minimises the NLL of held-out logits (1.0 if it cannot be fit).
+
+    Args:
+        logits: (N,) uncalibrated logits of P(safe).
+        labels: (N,) 1 safe, 0 unsafe.
+        bounds: search range of the temperature.
+
+    Returns:
+        T > 0; calibrated P(safe) = sigmoid(logit / T).
+    """
+    z = np.asarray(logits, np.float64).reshape(-1)
+    _, y = _check(expit(z), labels)
+    if z.size < 2 or y.min() == y.max():
+        return 1.0  # one class (or nothing) held out: no information about the scale
+    res = minimize_scalar(lambda log_t: binary_nll(z, y, float(np.exp(log_t))),
+                          bounds=(np.log(bounds[0]), np.log(bounds[1])), method='bounded',
+                          options={'xatol': 1e-4})
+    t = float(np.exp(res.x))
+    return t if np.isfinite(t) and binary_nll(z, y, t) <= binary_nll(z, y, 1.0) else 1.0
