@@ -36,9 +36,23 @@ MIN_HEIGHT = 0.15  # [m] synth2 obstacles are at least this high ...
 MAX_HEIGHT = 0.40  # ... at most this high ...
 MAX_ACROSS = 0.50  # ... and less than this across (largest horizontal extent)
 
-# Heights of the twelve rocks [m] (spread over the allowed range, not in index order, so that
-# both groups hold small and large rocks).
-_ROCK_HEIGHTS = (0.16, 0.22, 0.30, 0.38, 0.19, 0.26, 0.34, 0.24, 0.17, 0.28, 0.36, 0.21)
+# The twelve rocks: height [m] and proportions (length : width : height of the ellipsoid the
+# hull is drawn around), chosen so that the library holds distinct forms (slabs, pillars,
+# elongated stones, round boulders, mounds) and both groups hold small and large rocks.
+_ROCKS = (
+    (0.16, (1.00, 0.80, 0.30)),  # 0 flat slab
+    (0.22, (1.00, 0.40, 0.45)),  # 1 elongated stone
+    (0.30, (1.00, 0.90, 0.90)),  # 2 round boulder
+    (0.38, (0.55, 0.45, 1.00)),  # 3 pillar
+    (0.19, (1.00, 0.60, 0.60)),  # 4 cobble
+    (0.26, (1.00, 0.95, 0.45)),  # 5 broad mound
+    (0.34, (1.00, 0.70, 0.80)),  # 6 lumpy boulder
+    (0.24, (1.00, 0.35, 0.75)),  # 7 slab on its edge
+    (0.17, (1.00, 0.85, 0.75)),  # 8 small round stone
+    (0.28, (1.00, 0.50, 0.65)),  # 9 long boulder
+    (0.36, (0.80, 0.75, 1.00)),  # 10 tall boulder
+    (0.21, (1.00, 0.75, 0.40)),  # 11 flat stone
+)
 _N_TRAIN_ROCKS = 8
 
 
@@ -140,10 +154,8 @@ def _box(edge: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
 def _rock(index: int) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
     rng = np.random.default_rng(20150526 + 7919 * index)
-    # Proportions: long axis, a shorter second axis and a height that gives flat slabs as well
-    # as tall, rounded boulders.
-    a = rng.uniform(0.5, 1.0)
-    axes = np.array([a, a * rng.uniform(0.45, 0.95), rng.uniform(0.35, 0.9)])
+    height, proportions = _ROCKS[index]
+    axes = np.asarray(proportions, dtype=float)
     n = int(rng.integers(24, 60))
     dirs = rng.standard_normal((n, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
@@ -166,7 +178,7 @@ def _rock(index: int) -> tuple[np.ndarray, np.ndarray]:
     v = v @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
     v = _normalise(v)
     # Scale to the rock's height; shrink horizontally if it would be too wide.
-    v *= _ROCK_HEIGHTS[index] / v[:, 2].max()
+    v *= height / v[:, 2].max()
     r = np.max(np.hypot(v[:, 0], v[:, 1]))
     if 2.0 * r > 0.94 * MAX_ACROSS:
         v[:, :2] *= 0.94 * MAX_ACROSS / (2.0 * r)
@@ -214,7 +226,7 @@ def library() -> dict[str, ObstacleModel]:
     out: dict[str, ObstacleModel] = {}
     v, f = _box(0.15)
     out['box'] = ObstacleModel('box', 'box', 'both', _normalise(v), f)
-    for k in range(len(_ROCK_HEIGHTS)):
+    for k in range(len(_ROCKS)):
         v, f = _rock(k)
         group = 'train' if k < _N_TRAIN_ROCKS else 'test'
         out[f'rock_{k:02d}'] = ObstacleModel(f'rock_{k:02d}', 'rock', group, v, f,

@@ -387,7 +387,15 @@ def estimate_nod_rate(sensor: SensorConfig, position: np.ndarray, aoi_lo: np.nda
                               f'{np.round(position, 2).tolist()}')
     area = float(np.prod(aoi_hi - aoi_lo))
     per_sweep = sensor.target_density * area / sensor.sweeps_per_target
-    return math.degrees(omega_ref * n_ref / per_sweep)
+    omega = omega_ref * n_ref / per_sweep
+    # Interleave the sweeps. Lines of one sweep lie delta = omega * line_period apart in nod
+    # angle; sweep j (up for even j, down for odd) puts them at offsets -j*s resp. (j+1)*s
+    # (mod 1) of that spacing, with s = span / delta. With frac(s) = 1 / (2n) the first n
+    # sweeps fill the offsets k/n, k = 0..n-1: evenly spread lines, not stripes.
+    n = sensor.sweeps_per_target
+    s = geom.span / (omega * sensor.line_period)
+    s = max(round(s - 0.5 / n), 1) + 0.5 / n
+    return math.degrees(geom.span / (s * sensor.line_period))
 
 
 def hover_scan(caster: RayCaster, sensor: SensorConfig, position: np.ndarray,
