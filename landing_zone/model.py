@@ -179,6 +179,7 @@ def _shapes(layers: list[Layer], input_size: int, spec: str = '') -> list[tuple[
     out = []
     pos = 0
     for layer in layers:
+        token = pos + 1  # the C of a convolution, or the layer's one token
         pos += 2 if layer.kind == 'conv' else 1
         if layer.kind == 'conv':
             side, ch = side - layer.size + 1, layer.filters
@@ -187,7 +188,7 @@ def _shapes(layers: list[Layer], input_size: int, spec: str = '') -> list[tuple[
         else:
             ch, side = layer.size, 1
         if side < 1:
-            raise ConfigError(f'bad token {pos} {str(layer).split("-")[0]!r} of spec {spec!r}: '
+            raise ConfigError(f'bad token {token} {str(layer).split("-")[0]!r} of spec {spec!r}: '
                               f'it shrinks the {input_size}^3 input to nothing')
         out.append((ch, side))
     return out
@@ -456,7 +457,8 @@ def _inference_copy(model: SafetyNet, dtype: torch.dtype) -> nn.Module:
     hit = _infer_copies.get(model)
     if hit is not None and hit[0] == versions and hit[1] == dtype and hit[2] == device:
         return hit[3]
-    net = copy.deepcopy(model).to(device=device, dtype=dtype, memory_format=torch.channels_last_3d).eval()
+    net = copy.deepcopy(model).to(device=device, dtype=dtype,
+                                  memory_format=torch.channels_last_3d).eval()
     _infer_copies[model] = (versions, dtype, device, net)
     return net
 

@@ -4,9 +4,9 @@ The XY plane is cut on the global tile lattice (tile ``k = floor(x / tile_size)`
 ``(k + 0.5) * tile_size``; with 5 cm voxels a 1 m tile is 20 voxels and tile ``k`` covers voxels
 ``[20 k, 20 k + 20)``). For every tile:
 
-1. **Ground.** For each of its voxel columns the lowest *occupied* voxel (density at least
-   ``TileConfig.occupied_density``) is that column's candidate ground; the tile's ground is the
-   ``ground_quantile`` (default 5 %) of those column minima. Taking one value per column keeps
+1. **Ground.** For each of its voxel columns the lowest *occupied* voxel (hit at least once,
+   density at least ``TileConfig.occupied_density``) is that column's candidate ground; the
+   tile's ground is the ``ground_quantile`` (default 5 %) of those column minima. Taking one value per column keeps
    grass (many occupied voxels above the ground) from outvoting the few columns where the
    ground shows through, and the low quantile ignores a few columns with noise below the ground.
 2. **Cube.** A ``tile_size``-high cube sits on the tile with the ground voxel at its vertical
@@ -151,7 +151,8 @@ def _tile_kernel(hits, passes, lo, tiles, tv, pad, quantile, occupied, out, grou
                 for k in range(nz):
                     h = hits[xi, yj, k]
                     returns += h
-                    if not found:
+                    if not found and h > 0:
+                        # occupied: hit at least once and density at least the threshold
                         hf = np.float64(h)
                         if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
                             colmin[n] = k
@@ -254,8 +255,8 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: Sequence[int],
         # Counts are non-negative; uint32 keeps the kernel to one compiled signature.
         kernel = _tile_kernel_serial if n <= _SERIAL_TILES else _tile_kernel_parallel
         kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
-                     lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
-                     float(cfg.occupied_density), inputs, ground_k, nobs, nret)
+               lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
+               float(cfg.occupied_density), inputs, ground_k, nobs, nret)
     has_ground = ground_k > -(2 ** 62)
     gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
     ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)

@@ -391,7 +391,7 @@ def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
 
 
 def state_path(out: str | os.PathLike) -> Path:
-    """The training-state file beside a model file (``m.safetensors`` -> ``m.train.safetensors``)."""
+    """The training state beside a model file (``m.safetensors`` -> ``m.train.safetensors``)."""
     p = Path(out)
     return p.with_name(p.name[:-len('.safetensors')] + '.train.safetensors'
                        if p.name.endswith('.safetensors') else p.name + '.train.safetensors')
@@ -659,7 +659,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(loss=f'{run["loss_sum"] / run["loss_n"]:.4f}', refresh=False)
-            if cfg.checkpoint_minutes and time.monotonic() - last_ckpt > 60 * cfg.checkpoint_minutes:
+            if (cfg.checkpoint_minutes
+                    and time.monotonic() - last_ckpt > 60 * cfg.checkpoint_minutes):
                 checkpoint()
                 last_ckpt = time.monotonic()
             t_wait = time.perf_counter()

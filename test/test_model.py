@@ -1,0 +1,191 @@
+"""The safety CNN: spec parsing, shapes, checkpoints, inference."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from landing_zone.errors import ConfigError, ModelError
+from landing_zone.model import (PAPER_SPEC, Layer, SafetyNet, SafetyNetConfig, format_spec,
+                                load_model, parse_spec, predict, read_metadata, save_model)
+
+SMALL = 'C5-F8-P2-D32'
+
+
+def small_net(spec=SMALL, seed=0, dropout=0.5):
+    torch.manual_seed(seed)
+    return SafetyNet(SafetyNetConfig(spec, dropout=dropout))
+
+
+def volumes(n, seed=0):
+    return np.random.default_rng(seed).uniform(-1, 1, (n, 1, 32, 32, 32)).astype(np.float32)
+
+
+# --- the spec ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize('spec', [PAPER_SPEC, 'C7-F64-P4-D512', SMALL, 'C3-F32-P1-D128',
+                                  'D64', 'P2-C3-F16-D64-D32', 'C3-F8-C3-F8-P4-D16'])
+def test_spec_round_trips(spec):
+    assert format_spec(parse_spec(spec, 32)) == spec
+    assert SafetyNet(SafetyNetConfig(spec)).spec == spec
+
+
+def test_spec_parses_into_layers():
+    assert parse_spec(PAPER_SPEC) == [Layer('conv', 7, 32), Layer('pool', 2),
+                                      Layer('conv', 5, 64), Layer('pool', 2),
+                                      Layer('dense', 512)]
+
+
+@pytest.mark.parametrize('spec,match', [
+    ('', 'non-empty'),
+    ('C7', 'lacks its filter count'),
+    ('C7-P2-D8', "token 2 'P2'.*followed by its filter count"),
+    ('F32-D8', "token 1 'F32'.*must follow a convolution"),
+    ('C7-F32-X2', "token 3 'X2'"),
+    ('C0-F8', "token 1 'C0'"),
+    ('c7-f32', "token 1 'c7'"),
+    ('C7-F32--D8', "token 3 ''"),
+    ('D512-C3-F8', "token 2 'C3'.*before dense"),
+    ('D512-P2', "token 2 'P2'.*before dense"),
+    ('C5-F99999', "token 2 'F99999'.*at most"),
+])
+def test_bad_specs_name_the_bad_token(spec, match):
+    with pytest.raises(ConfigError, match=match):
+        parse_spec(spec)
+
+
+def test_a_spec_that_shrinks_the_input_to_nothing_is_refused():
+    with pytest.raises(ConfigError, match="token 7 'C9'.*shrinks the 32"):
+        parse_spec('C9-F8-C9-F8-C9-F8-C9-F8-D8', 32)
+    with pytest.raises(ConfigError, match="token 3 'P64'"):
+        SafetyNet(SafetyNetConfig('C3-F8-P64-D8'))
+
+
+# --- the net -----------------------------------------------------------------------------------
+
+def test_paper_net_shapes_and_cost():
+    net = SafetyNet(SafetyNetConfig(PAPER_SPEC))
+    # 32 -> C7 26 -> P2 13 -> C5 9 -> P2 4: 64 * 4^3 = 4096 features into D512
+    assert net.dense[0].fc.in_features == 4096
+    assert net.features[0].conv.weight.shape == (32, 1, 7, 7, 7)
+    macs = 26 ** 3 * 32 * 343 + 9 ** 3 * 64 * 32 * 125 + 4096 * 512 + 512
+    assert net.flops() == macs
+    logits, loss = net.eval()(torch.zeros(3, 1, 32, 32, 32), torch.ones(3))
+    assert logits.shape == (3,) and loss.ndim == 0
+
+
+def test_dropout_only_in_training():
+    net = small_net(dropout=0.5)
+    x = torch.from_numpy(volumes(4))
+    net.train()
+    a, _ = net(x)
+    b, _ = net(x)
+    assert not torch.equal(a, b)
+    net.eval()
+    assert torch.equal(net(x)[0], net(x)[0])
+    assert not any(isinstance(m, torch.nn.Dropout) for m in small_net(dropout=0.0).modules())
+
+
+# --- checkpoints -------------------------------------------------------------------------------
+
+def test_save_load_round_trips_bit_exactly(tmp_path):
+    net = small_net().eval()
+    net.temperature = 1.7
+    path = tmp_path / 'm.safetensors'
+    save_model(path, net, {'voxel_size': 0.05, 'metrics': {'auc': 0.9}, 'seed': 3})
+    loaded, meta = load_model(path)
+    assert not loaded.training
+    assert loaded.spec == SMALL and loaded.temperature == 1.7
+    assert meta['voxel_size'] == 0.05 and meta['metrics'] == {'auc': 0.9} and meta['seed'] == 3
+    for (k, v), (k2, v2) in zip(net.state_dict().items(), loaded.state_dict().items()):
+        assert k == k2 and torch.equal(v, v2)
+    x = volumes(5)
+    np.testing.assert_array_equal(predict(net, x, precision='fp32'),
+                                  predict(loaded, x, precision='fp32'))
+    assert read_metadata(path)['model']['spec'] == SMALL
+
+
+def test_weights_of_another_architecture_are_refused(tmp_path):
+    from safetensors.torch import save_file
+    path = tmp_path / 'm.safetensors'
+    save_model(path, small_net())
+    meta = read_metadata(path)
+    other = small_net('C5-F16-P2-D32')
+    meta['model']['spec'] = SMALL  # a file that claims SMALL but holds C5-F16 weights
+    save_file({k: v.contiguous() for k, v in other.state_dict().items()}, str(path),
+              metadata={'landing_zone': json.dumps(meta)})
+    with pytest.raises(ModelError, match="do not match architecture C5-F8-P2-D32.*shape"):
+        load_model(path)
+
+
+def test_corrupt_files_are_refused_with_one_line(tmp_path):
+    path = tmp_path / 'm.safetensors'
+    save_model(path, small_net())
+    data = bytearray(path.read_bytes())
+    flipped = tmp_path / 'flipped.safetensors'
+    flipped.write_bytes(bytes(data[:-100]) + bytes(b ^ 0xFF for b in data[-100:]))
+    truncated = tmp_path / 'truncated.safetensors'
+    truncated.write_bytes(bytes(data[:len(data) // 2]))
+    text = tmp_path / 'text.safetensors'
+    text.write_text('not a model\n')
+    for bad, match in [(flipped, 'corrupt'), (truncated, 'not a readable'),
+                       (text, 'not a readable'), (tmp_path / 'missing.safetensors',
+                                                  'not found')]:
+        with pytest.raises(ModelError, match=match) as info:
+            load_model(bad)
+        assert '\n' not in str(info.value)
+
+
+def test_metadata_must_be_json(tmp_path):
+    path = tmp_path / 'm.safetensors'
+    with pytest.raises(ModelError, match='JSON'):
+        save_model(path, small_net(), {'bad': object()})
+    assert not path.exists()
+
+
+# --- inference ---------------------------------------------------------------------------------
+
+def test_predict_gives_calibrated_probabilities():
+    net = small_net().eval()
+    x = volumes(7)
+    logits = predict(net, x, precision='fp32', logits=True)
+    with torch.no_grad():
+        ref, _ = net(torch.from_numpy(x))
+    np.testing.assert_allclose(logits, ref.numpy(), rtol=1e-4, atol=1e-5)
+    net.temperature = 2.0
+    p = predict(net, x, precision='fp32', batch_size=3)
+    np.testing.assert_allclose(p, 1 / (1 + np.exp(-ref.numpy() / 2.0)), rtol=1e-4, atol=1e-6)
+    assert p.dtype == np.float32 and p.shape == (7,)
+    # (T, S, S, S) works too
+    np.testing.assert_array_equal(predict(net, x[:, 0], precision='fp32', batch_size=3), p)
+
+
+def test_bf16_agrees_with_fp32():
+    net = small_net().eval()
+    x = volumes(6)
+    p32 = predict(net, x, precision='fp32')
+    p16 = predict(net, x, precision='bf16')
+    assert np.max(np.abs(p32 - p16)) < 0.02
+
+
+def test_predict_follows_weight_updates():
+    net = small_net().eval()
+    x = volumes(2)
+    before = predict(net, x, precision='fp32', logits=True)
+    with torch.no_grad():
+        net.head.bias += 1.0
+    after = predict(net, x, precision='fp32', logits=True)
+    np.testing.assert_allclose(after - before, 1.0, rtol=1e-5)
+
+
+def test_predict_rejects_bad_inputs():
+    net = small_net()
+    x = volumes(2)
+    x[0, 0, 1, 2, 3] = np.nan
+    with pytest.raises(ConfigError, match='NaN'):
+        predict(net, x)
+    with pytest.raises(ConfigError, match=r'\(T, 1, 32, 32, 32\)'):
+        predict(net, np.zeros((2, 1, 16, 16, 16), np.float32))
+    with pytest.raises(ConfigError, match='precision'):
+        predict(net, volumes(1), precision='fp8')
+    assert predict(net, np.zeros((0, 1, 32, 32, 32), np.float32)).shape == (0,)
