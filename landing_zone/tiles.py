@@ -6,9 +6,10 @@ The XY plane is cut on the global tile lattice (tile ``k = floor(x / tile_size)`
 
 1. **Ground.** For each of its voxel columns the lowest *occupied* voxel (hit at least once,
    density at least ``TileConfig.occupied_density``) is that column's candidate ground; the
-   tile's ground is the ``ground_quantile`` (default 5 %) of those column minima. Taking one value per column keeps
-   grass (many occupied voxels above the ground) from outvoting the few columns where the
-   ground shows through, and the low quantile ignores a few columns with noise below the ground.
+   tile's ground is the ``ground_quantile`` (default 5 %) of those column minima. Taking one
+   value per column keeps grass (many occupied voxels above the ground) from outvoting the few
+   columns where the ground shows through, and the low quantile ignores a few columns with
+   noise below the ground.
 2. **Cube.** A ``tile_size``-high cube sits on the tile with the ground voxel at its vertical
    middle (index ``tile_vox // 2``); ``padding`` voxels of context are added on every side
    (20 + 2 * 6 = 32 at the defaults) and read as the network input ``x = 2 * density - 1 =
