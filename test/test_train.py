@@ -1,0 +1,235 @@
+"""Training: it learns, it is deterministic, it resumes exactly, it refuses what it cannot do."""
+import csv
+
+import numpy as np
+import pytest
+import torch
+
+from landing_zone.config import MapConfig, TileConfig
+from landing_zone.errors import ConfigError, DatasetError, ModelError
+from landing_zone.model import load_model, predict, save_model, SafetyNet, SafetyNetConfig
+from landing_zone.sim.dataset import Scene
+from landing_zone.train import (AugmentedVolumes, EpochSampler, ScenePack, TrainConfig,
+                                log_path, roc_auc, split_scenes, state_path, train, voxelize)
+
+SMALL = 'C5-F8-P2-D32'
+
+
+def toy_scene(rng, unsafe, n=4000):
+    """A LiDAR patch over flat ground, seen from a sensor 5-7 m back and 3.5-5 m up, with an
+    axis-aligned box (16-30 cm wide, 15-30 cm tall) near the tile centre when ``unsafe``.
+
+    Returns are the first intersection of each ray with the ground or the box (slab method).
+    """
+    sensor = np.array([rng.uniform(-7, -5), rng.uniform(-1, 1), rng.uniform(3.5, 5.0)])
+    target = np.column_stack([rng.uniform(-1.5, 1.5, n), rng.uniform(-1.5, 1.5, n),
+                              rng.normal(0.0, 0.01, n)])
+    d = target - sensor
+    t = np.ones(n)
+    params = {'obstacle': None}
+    if unsafe:
+        half = rng.uniform(0.08, 0.15, 2)
+        height = rng.uniform(0.15, 0.3)
+        c = rng.uniform(-0.25, 0.25, 2)
+        lo = np.array([c[0] - half[0], c[1] - half[1], -0.05])
+        hi = np.array([c[0] + half[0], c[1] + half[1], height])
+        with np.errstate(divide='ignore', invalid='ignore'):
+            t0, t1 = (lo - sensor) / d, (hi - sensor) / d
+        t_in = np.minimum(t0, t1).max(axis=1)
+        t_out = np.maximum(t0, t1).min(axis=1)
+        hit = (t_in <= t_out) & (t_in > 0) & (t_in < 1)
+        t[hit] = t_in[hit]
+        params = {'obstacle': {'kind': 'box', 'x': float(c[0]), 'y': float(c[1]), 'z': 0.0,
+                               'yaw': 0.0, 'size': [float(2 * half[0]), float(2 * half[1]),
+                                                    float(height)]}}
+    pts = sensor + t[:, None] * d
+    return Scene(pts.astype(np.float32), np.broadcast_to(sensor, pts.shape).astype(np.float32),
+                 0 if unsafe else 1, params)
+
+
+def toy_scenes(n, seed):
+    """``n`` scenes alternating unsafe (box) and safe (open ground)."""
+    rng = np.random.default_rng(seed)
+    return [toy_scene(rng, i % 2 == 0) for i in range(n)]
+
+
+def quick_config(**kw):
+    base = dict(arch=SMALL, epochs=1, augment_copies=2, val_fraction=0.25, dropout=0.0,
+                checkpoint_minutes=0.0)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def weights(path):
+    model, _ = load_model(path)
+    return {k: v.clone() for k, v in model.state_dict().items()}
+
+
+def same_weights(a, b):
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+# --- it learns ---------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_a_short_training_separates_boxes_from_open_ground(tmp_path):
+    out = tmp_path / 'm.safetensors'
+    summary = train(toy_scenes(80, seed=1), out,
+                    quick_config(epochs=3, augment_copies=4, val_fraction=0.2),
+                    progress=False)
+    model, meta = load_model(out)
+    # held-out scenes, never seen in training or validation
+    test = ScenePack.from_scenes(toy_scenes(40, seed=2))
+    x, y = voxelize(test, MapConfig(), TileConfig())
+    auc = roc_auc(y.numpy(), predict(model, x))
+    assert auc > 0.8, f'AUC {auc:.3f} on held-out scenes'
+    # the file knows what it is
+    assert meta['model']['spec'] == SMALL and meta['training']['epochs'] == 3
+    assert meta['voxel_size'] == 0.05 and meta['tiles']['padding'] == 6
+    assert meta['metrics']['samples'] == 3 * 64 * 4
+    assert 0 < summary['temperature'] == model.temperature
+    with open(log_path(out), newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r['epoch']) for r in rows] == [1, 2, 3]
+    assert all(float(r['train_loss']) > 0 for r in rows)
+    assert state_path(out).exists()
+
+
+# --- determinism and resuming ------------------------------------------------------------------
+
+def test_same_seed_same_model_other_seed_other_model(tmp_path):
+    scenes = toy_scenes(12, seed=3)
+    cfg = quick_config(dropout=0.5)
+    train(scenes, tmp_path / 'a.safetensors', cfg, progress=False)
+    train(scenes, tmp_path / 'b.safetensors', cfg, progress=False)
+    train(scenes, tmp_path / 'c.safetensors', quick_config(dropout=0.5, seed=1), progress=False)
+    assert same_weights(weights(tmp_path / 'a.safetensors'), weights(tmp_path / 'b.safetensors'))
+    assert not same_weights(weights(tmp_path / 'a.safetensors'),
+                            weights(tmp_path / 'c.safetensors'))
+
+
+def test_resume_after_an_epoch_continues_exactly(tmp_path):
+    scenes = toy_scenes(12, seed=4)
+    train(scenes, tmp_path / 'full.safetensors', quick_config(epochs=2, dropout=0.5),
+          progress=False)
+    part = tmp_path / 'part.safetensors'
+    train(scenes, part, quick_config(epochs=1, dropout=0.5), progress=False)
+    train(scenes, part, quick_config(epochs=2, dropout=0.5), resume=True, progress=False)
+    assert same_weights(weights(tmp_path / 'full.safetensors'), weights(part))
+    with open(log_path(part), newline='') as f:
+        assert [int(r['epoch']) for r in csv.DictReader(f)] == [1, 2]
+
+
+def test_resume_within_an_epoch_continues_exactly(tmp_path, monkeypatch):
+    scenes = toy_scenes(16, seed=5)
+    cfg = quick_config(epochs=1, batch_size=4, dropout=0.5)
+    train(scenes, tmp_path / 'full.safetensors', cfg, progress=False)
+    # the same run, killed at the 5th batch; the state is saved after every batch
+    part = tmp_path / 'part.safetensors'
+    calls = {'n': 0}
+    original = AugmentedVolumes.__getitem__
+
+    def dying(self, key):
+        if self.augment:
+            calls['n'] += 1
+            if calls['n'] > 4 * 4:
+                raise KeyboardInterrupt
+        return original(self, key)
+
+    monkeypatch.setattr(AugmentedVolumes, '__getitem__', dying)
+    with pytest.raises(KeyboardInterrupt):
+        train(scenes, part, quick_config(epochs=1, batch_size=4, dropout=0.5,
+                                         checkpoint_minutes=1e-9), progress=False)
+    monkeypatch.setattr(AugmentedVolumes, '__getitem__', original)
+    assert not part.exists() and state_path(part).exists()
+    train(scenes, part, cfg, resume=True, progress=False)
+    assert same_weights(weights(tmp_path / 'full.safetensors'), weights(part))
+
+
+def test_resume_with_other_settings_is_refused(tmp_path):
+    scenes = toy_scenes(8, seed=6)
+    out = tmp_path / 'm.safetensors'
+    train(scenes, out, quick_config(), progress=False)
+    with pytest.raises(ConfigError, match='--resume: lr was 0.01'):
+        train(scenes, out, quick_config(epochs=2, lr=0.02), resume=True, progress=False)
+
+
+def test_init_must_match_the_architecture(tmp_path):
+    other = tmp_path / 'other.safetensors'
+    save_model(other, SafetyNet(SafetyNetConfig('C3-F4-P4-D8')))
+    with pytest.raises(ModelError, match='--init model .* is C3-F4-P4-D8'):
+        train(toy_scenes(8, seed=7), tmp_path / 'm.safetensors', quick_config(), init=other,
+              progress=False)
+
+
+@pytest.mark.slow
+def test_workers_and_voxel_cache_give_what_the_training_process_would(tmp_path):
+    scenes = toy_scenes(10, seed=8)
+    train(scenes, tmp_path / 'a.safetensors', quick_config(), progress=False)
+    train(scenes, tmp_path / 'b.safetensors', quick_config(workers=1), progress=False)
+    assert same_weights(weights(tmp_path / 'a.safetensors'), weights(tmp_path / 'b.safetensors'))
+    summary = train(scenes, tmp_path / 'c.safetensors', quick_config(cache_voxels=2),
+                    progress=False)
+    assert summary['samples'] == 8 * 2 and np.isfinite(summary['val_loss'])
+
+
+# --- the pieces --------------------------------------------------------------------------------
+
+def test_augmentation_is_a_function_of_seed_epoch_scene_and_copy():
+    pack = ScenePack.from_scenes(toy_scenes(4, seed=9))
+    ds = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
+    draws = {ds.draw(e, s, c) for e in range(2) for s in range(4) for c in range(3)}
+    assert len(draws) == 24  # all different
+    assert ds.draw(1, 2, 0) == AugmentedVolumes(pack, MapConfig(), TileConfig(), 0).draw(1, 2, 0)
+    yaw, dz = ds.draw(0, 0, 0)
+    assert 0 <= yaw < 2 * np.pi and -0.3 <= dz <= 0.3
+    x, y = ds[(0, 1, 0)]
+    assert x.shape == (1, 32, 32, 32) and float(y) == 1.0
+    assert AugmentedVolumes(pack, MapConfig(), TileConfig(), 0, augment=False).draw(3, 1, 2) \
+        == (0.0, 0.0)
+
+
+def test_epoch_sampler_orders_and_caps():
+    s = EpochSampler(np.array([10, 11, 12]), copies=2, seed=0)
+    s.set_epoch(0)
+    keys = [tuple(k) for k in s]
+    assert sorted(keys) == sorted((0, sc, c) for sc in (10, 11, 12) for c in (0, 1))
+    s.set_epoch(1)
+    assert [k[1:] for k in s] != [k[1:] for k in keys]
+    s.set_epoch(0, start=4)
+    assert list(s) == keys[4:] and len(s) == 2
+    capped = EpochSampler(np.array([10, 11, 12]), copies=2, seed=0, max_samples=4)
+    assert len(list(capped)) == 4 == len(capped)
+
+
+def test_validation_split_is_by_scene_and_per_class():
+    labels = np.array([0] * 30 + [1] * 10)
+    tr, va = split_scenes(labels, 0.1, seed=0)
+    assert len(np.intersect1d(tr, va)) == 0 and len(tr) + len(va) == 40
+    assert (labels[va] == 0).sum() == 3 and (labels[va] == 1).sum() == 1
+    assert np.array_equal(va, split_scenes(labels, 0.1, seed=0)[1])
+    assert len(split_scenes(labels, 0.0, seed=0)[1]) == 0
+
+
+def test_scene_pack_gives_the_scenes_back():
+    scenes = toy_scenes(3, seed=10)
+    pack = ScenePack.from_scenes(scenes)
+    for i, s in enumerate(scenes):
+        p, o = pack.scene(i)
+        np.testing.assert_array_equal(p, s.points)
+        np.testing.assert_array_equal(o, s.origins)
+    assert pack.labels.tolist() == [0, 1, 0]
+    assert pack.origins.shape[0] == 3  # one scan position per scene, stored once
+
+
+def test_bad_data_and_settings_are_refused(tmp_path):
+    with pytest.raises(DatasetError, match='both classes'):
+        train([toy_scene(np.random.default_rng(0), False) for _ in range(4)],
+              tmp_path / 'm.safetensors', quick_config(), progress=False)
+    with pytest.raises(ConfigError, match="token 1 'Q3'"):
+        train(toy_scenes(4, 0), tmp_path / 'm.safetensors', quick_config(arch='Q3'),
+              progress=False)
+    with pytest.raises(ConfigError, match='epochs must be >= 1'):
+        quick_config(epochs=0).validate()
+    with pytest.raises(DatasetError, match='no dataset directory'):
+        train(tmp_path, tmp_path / 'm.safetensors', quick_config(), progress=False)
