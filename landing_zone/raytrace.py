@@ -525,14 +525,6 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
     counters[part, 1] = nv
 
 
-@nb.njit(cache=True, parallel=True)
-def _trace_all(uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits, passes,
-               cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
-    for part in nb.prange(yint.shape[0]):
-        _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
-                    passes, cdir, pool, used, resume, dirty, dlo, tile_vox, counters)
-
-
 def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes, cdir, pool,
                used, resume, dirty, dirty_lo, tile_vox, counters,
                parallel: bool = True) -> None:
@@ -548,19 +540,14 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
     args = (uo, up, order, nvalid, box_lo, box_hi, yint, box_lo, tables[0], tables[1],
             tables[2], hits, passes, cdir, pool, used, resume, dirty, dirty_lo, tile_vox,
             counters)
-    nparts = yint.shape[0]
-    if parallel and THREADING == 'prange' and nb.get_num_threads() > 1:
-        _trace_all(*args)
-    else:
-        run_parts(_trace_part, nparts, args, parallel)
+    run_parts(_trace_part, yint.shape[0], args, parallel)
 
 
-# How the parts of a batch run in parallel: 'threads' (Python threads pull parts from a shared
-# counter; the kernel releases the GIL) or 'prange' (numba's threading layer, OpenMP here).
-# Measured with `landing-zone bench integrate`: equal on a quiet machine, but when another
-# process holds one of the two cores, OpenMP's static split waits for the descheduled thread
-# (and its barrier spins), while with the counter the running thread simply takes more parts.
-THREADING = 'threads'
+# Parts run on Python threads that pull them from a shared counter while the kernel releases
+# the GIL. The alternative, numba.prange over the parts (OpenMP here), was measured on this
+# shared 2-core machine with the integrate scene: 0.57M against 0.76M returns/s with another
+# process busy on one core (its static split waits for the descheduled thread, and one call
+# with 10k trivial rays took 16 ms against 0.7 ms), and never faster, so it went.
 _EXECUTOR = None
 
 

@@ -238,17 +238,11 @@ def test_mark_tile_size_resets_the_record():
         dmap.mark_tile_size(0)
 
 
-def test_serial_and_threaded_maps_agree(monkeypatch):
+def test_serial_and_threaded_maps_agree():
     a = make_map(16, 12)
     b = make_map(16, 12)
     b.parallel = False
     fill_random(a, 3000, seed=8)
     fill_random(b, 3000, seed=8)
     for x, y in zip(a.counts(), b.counts()):
-        np.testing.assert_array_equal(x, y)
-    import landing_zone.raytrace as rt
-    monkeypatch.setattr(rt, 'THREADING', 'prange')
-    c = make_map(16, 12)
-    fill_random(c, 3000, seed=8)
-    for x, y in zip(a.counts(), c.counts()):
         np.testing.assert_array_equal(x, y)

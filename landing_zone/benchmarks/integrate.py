@@ -17,7 +17,6 @@ import time
 
 import numpy as np
 
-from landing_zone import raytrace
 from landing_zone.config import MapConfig
 from landing_zone.density_map import DensityMap
 
@@ -56,18 +55,9 @@ def _timed(fn, repeats: int) -> list[float]:
     return times
 
 
-def _throughput(batches: list[np.ndarray], repeats: int, threading: str = 'threads',
-                **variant) -> tuple[list[float], dict]:
+def _throughput(batches: list[np.ndarray], repeats: int, **variant) -> tuple[list[float], dict]:
     """Returns/s of each repeat over all batches (each repeat on a fresh, warmed map)."""
     rates = []
-    saved, raytrace.THREADING = raytrace.THREADING, threading
-    try:
-        return _throughput_runs(batches, repeats, rates, **variant)
-    finally:
-        raytrace.THREADING = saved
-
-
-def _throughput_runs(batches, repeats, rates, **variant):
     for _ in range(repeats):
         dmap = DensityMap(MapConfig())
         for k, v in variant.items():
@@ -117,7 +107,6 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         ('same, input order (no sort)', {'sort_tile': 0}),
         ('same, sorted by 8-voxel cells', {'sort_tile': 8}),
         ('same, sorted by 32-voxel cells', {'sort_tile': 32}),
-        ('2 parts in numba prange (OpenMP)', {'threading': 'prange'}),
         ('serial (parts in turn), sorted', {'parallel': False}),
     ]
     results: dict = {'returns_per_batch': BATCH, 'batches': batches, 'threads': threads,
