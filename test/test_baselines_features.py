@@ -120,3 +120,20 @@ def test_only_core_voxels_and_bad_inputs():
 def test_spectral_features_degenerate_neighbourhood():
     out = spectral_features(np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2.0], [1.0, 1.0, 1.0]]))
     np.testing.assert_allclose(out, [[0, 0, 1], [1, 0, 0], [0, 0, 1]])
+
+
+def test_thresholds_match_the_tiles_definition():
+    # (hits - passes) / (hits + passes + 2) in float32, as tiles.py writes it.
+    def x(h, p):
+        return np.float32(h - p) / np.float32(h + p + 2)
+    vol = np.zeros((S, S, S), np.float32)
+    vol[10, 10, 16] = x(2, 1)  # density exactly 0.6: occupied
+    vol[12, 12, 16] = x(1, 1)  # density 0.5: neither
+    vol[14, 14, 16] = x(1, 0)  # one hit: occupied
+    vol[14, 14, 17] = x(1, 2)  # density exactly 0.4: free
+    f = voxel_features(vol[None])
+    assert {tuple(v) for v in f.ijk} == {(10, 10, 16), (14, 14, 16)}
+    assert _at(f, 0, (14, 14, 16))['column_layers'] == 1
+    from landing_zone.baselines import VolumeGeometry
+    with pytest.raises(ConfigError, match='occupied_density'):
+        voxel_features(vol[None], VolumeGeometry(occupied_density=0.5))

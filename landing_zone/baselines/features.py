@@ -108,8 +108,8 @@ def _chunk_features(vol: np.ndarray, g: VolumeGeometry, radius: int,
     """Features of one chunk (B, X, Y, Z): (M, F) values and (M, 4) indices (b, i, j, k)."""
     nb, nx, _, nz = vol.shape
     core = g.core(nx)
-    occ_b = vol > g.occupied_value
-    free_b = vol < g.free_value
+    occ_b = vol >= g.occupied_value
+    free_b = vol <= g.free_value
     occ = occ_b.astype(np.float32)
 
     # Voxels whose neighbourhood statistics the core needs: the core dilated by the radius.

@@ -155,7 +155,7 @@ class PlaneResiduals:
             return half * float(np.abs(normal).sum())
 
         out = np.zeros(vol.shape[0])
-        occupied = vol[:, core, core, :] > g.occupied_value
+        occupied = vol[:, core, core, :] >= g.occupied_value
         for t in range(vol.shape[0]):
             i, j, k = np.nonzero(occupied[t])
             pts = np.stack([xs[i], xs[j], zs[k]], axis=1)

@@ -16,6 +16,9 @@ from landing_zone.errors import ConfigError, DatasetError
 
 __all__ = ['VolumeGeometry', 'as_volumes', 'as_labels']
 
+# Rounding slack of the thresholds against float32 inputs.
+_SLACK = 1e-6
+
 
 @dataclass(frozen=True)
 class VolumeGeometry:
@@ -34,21 +37,26 @@ class VolumeGeometry:
             raise ConfigError(f'voxel_size must be positive, got {self.voxel_size!r}')
         if not (np.isfinite(self.tile_size) and self.tile_size >= self.voxel_size):
             raise ConfigError(f'tile_size must be at least one voxel, got {self.tile_size!r}')
-        if not 0.5 <= self.occupied_density < 1.0:
-            raise ConfigError(f'occupied_density must lie in [0.5, 1), got '
+        # Strictly apart from 0.5, the density of an unobserved voxel, which is neither.
+        if not 0.5 < self.occupied_density < 1.0:
+            raise ConfigError(f'occupied_density must lie in (0.5, 1), got '
                               f'{self.occupied_density!r}')
-        if not 0.0 < self.free_density <= 0.5:
-            raise ConfigError(f'free_density must lie in (0, 0.5], got {self.free_density!r}')
+        if not 0.0 < self.free_density < 0.5:
+            raise ConfigError(f'free_density must lie in (0, 0.5), got {self.free_density!r}')
 
     @property
     def occupied_value(self) -> float:
-        """The occupancy threshold in input units (2 * density - 1)."""
-        return 2.0 * self.occupied_density - 1.0
+        """The occupancy threshold in input units: occupied where ``x >= occupied_value``.
+
+        A hair below ``2 * occupied_density - 1`` so that a float32 input computed exactly at
+        the threshold (e.g. 2 hits, 1 pass: 0.2) counts as occupied, as in tiles.py.
+        """
+        return 2.0 * self.occupied_density - 1.0 - _SLACK
 
     @property
     def free_value(self) -> float:
-        """The free-space threshold in input units (2 * density - 1)."""
-        return 2.0 * self.free_density - 1.0
+        """The free-space threshold in input units: free where ``x <= free_value``."""
+        return 2.0 * self.free_density - 1.0 + _SLACK
 
     @property
     def tile_vox(self) -> int:
