@@ -1,0 +1,84 @@
+"""``python -m landing_zone.sim``: the simulator's commands without typer.
+
+The dataset machine has only numpy, scipy, numba, trimesh and embreex, so the dataset command
+is parsed here with argparse and imports nothing else (``landing-zone simulate`` is the same
+command behind the project's typer CLI)::
+
+    python -m landing_zone.sim simulate --dataset synth2 --out data/synth2 --workers 16
+    python -m landing_zone.sim simulate-flight --out site.mcap        (needs rosbags)
+    python -m landing_zone.sim render data/synth2 --out patch.png     (needs matplotlib)
+
+Errors on bad input print one line and exit with status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from landing_zone.errors import LandingZoneError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='python -m landing_zone.sim',
+                                description='LiDAR simulator: datasets, flights, pictures.')
+    sub = p.add_subparsers(dest='command', required=True)
+    s = sub.add_parser('simulate', help="labelled patches of the paper's Table I sweep")
+    s.add_argument('--dataset', required=True, choices=('synth1', 'synth2'))
+    s.add_argument('--out', required=True, help='output directory (a rerun resumes)')
+    s.add_argument('--scenes', type=int, default=None, help='subsample the sweep evenly')
+    s.add_argument('--workers', type=int, default=None, help='processes (default: all cores)')
+    s.add_argument('--seed', type=int, default=0)
+    s.add_argument('--split', default='both', choices=('train', 'test', 'both'))
+    s.add_argument('--quiet', action='store_true', help='no progress bar')
+    f = sub.add_parser('simulate-flight', help='a flight over a site as a ROS 2 bag')
+    f.add_argument('--out', required=True, help='SITE.mcap (labels go to SITE.labels.json)')
+    f.add_argument('--size', type=float, default=20.0)
+    f.add_argument('--obstacles', type=int, default=6)
+    f.add_argument('--kinds', default='rock,tire,cinder_block,box')
+    f.add_argument('--grass-density', type=float, default=600.0)
+    f.add_argument('--grass-height', type=float, default=0.25)
+    f.add_argument('--height', type=float, default=8.0)
+    f.add_argument('--speed', type=float, default=None)
+    f.add_argument('--seed', type=int, default=0)
+    f.add_argument('--overwrite', action='store_true')
+    r = sub.add_parser('render', help='side and top view of a patch, dataset scene or flight')
+    r.add_argument('source', help='dataset directory or SITE.mcap')
+    r.add_argument('--out', required=True, help='PNG file')
+    r.add_argument('--index', type=int, default=0, help='scene of a dataset')
+    r.add_argument('--split', default='all', choices=('train', 'test', 'all'))
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == 'simulate':
+            from landing_zone.sim.dataset import simulate_dataset
+            summary = simulate_dataset(args.dataset, args.out, scenes=args.scenes,
+                                       workers=args.workers, seed=args.seed, split=args.split,
+                                       progress=not args.quiet)
+            print(json.dumps(summary, indent=1))
+        elif args.command == 'simulate-flight':
+            from landing_zone.sim.flight import FlightConfig, simulate_flight
+            cfg = FlightConfig(size=args.size, obstacles=args.obstacles,
+                               kinds=tuple(k.strip() for k in args.kinds.split(',') if k),
+                               grass_density=args.grass_density,
+                               grass_height=args.grass_height, height=args.height,
+                               speed=args.speed, seed=args.seed)
+            print(json.dumps(simulate_flight(cfg, args.out, overwrite=args.overwrite).summary(),
+                             indent=1))
+        else:
+            from landing_zone.sim.render import render
+            print(render(args.source, args.out, index=args.index, split=args.split))
+    except LandingZoneError as err:
+        print(f'landing-zone: error: {err}', file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print('landing-zone: interrupted (rerun the same command to resume)', file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,439 @@
+"""A simulated flight over a vegetated landing site, written as a ROS 2 bag with ground truth.
+
+The site (default 20 m x 20 m, centred at the origin of the ``map`` frame) has Perlin-noise
+ground, grass in patches of varying density and height with clearings of open ground, and
+obstacles of mixed kinds at least 1.5 m apart. The helicopter flies a lawnmower pattern of
+straight passes along x at constant height and speed; its scanner's plane is tilted forward by
+``tilt`` (45 degrees: the ground line lies ``height`` metres ahead, seen at the depression
+angles of the training patches) and it scans every line while on a pass. Unless given, the
+speed is chosen so that the passes together put the target density onto the site (on flat
+ground the density is inversely proportional to the speed; the constant follows from the scan
+geometry, see :func:`_density_constant`).
+
+Outputs (``../shared/CONTRACT.md``):
+
+* ``SITE.mcap``: ``/lidar/points`` (sensor_msgs/PointCloud2, frame ``map``, a few scan lines
+  per message, FLOAT32 ``x``, ``y``, ``z``, ``intensity``, plus UINT8 ``label``, the class of
+  the surface hit: 0 ground, 1 grass, 2 obstacle) and ``/lidar/pose`` (geometry_msgs/PoseStamped
+  of the sensor, one per cloud at the cloud's stamp, and at the same rate while turning);
+* ``SITE.labels.json``: every 1 m tile of the site on the global lattice (centres at x.5),
+  unsafe when an obstacle's footprint overlaps it, and the obstacles.
+
+rosbags is imported only when the bag is written.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from landing_zone.errors import BagError, SimulationError
+from landing_zone.sim.grass import GrassConfig, grass_mesh
+from landing_zone.sim.obstacles import KINDS, Obstacle, models, place
+from landing_zone.sim.scene import World
+from landing_zone.sim.sensor import BrownianWalk, Returns, SensorConfig, path_scan
+from landing_zone.sim.terrain import PerlinNoise, Terrain, TerrainConfig
+
+__all__ = ['FlightConfig', 'Site', 'FlightResult', 'build_site', 'simulate_flight',
+           'tile_labels', 'polygon_overlaps_square', 'START_TIME_NS']
+
+START_TIME_NS = 1_735_689_600 * 1_000_000_000  # 2025-01-01T00:00:00Z: stamps of every flight
+_MIN_SEPARATION = 1.5  # [m] between obstacle centres
+_SWATH_ANGLE = 40.0  # [deg] scan angle out to which a pass counts as covering the ground
+_TURN_POSE_RATE = 50.0  # [Hz] poses while turning between passes
+
+
+@dataclass(frozen=True)
+class FlightConfig:
+    """The site and the flight."""
+
+    size: float = 20.0  # edge of the square site [m]
+    obstacles: int = 6  # number of obstacles
+    kinds: tuple[str, ...] = ('rock', 'tire', 'cinder_block', 'box')  # cycled through
+    grass_density: float = 600.0  # blades/m^2 of a typical patch (patches: 0 to twice that)
+    grass_height: float = 0.25  # mean blade height of a typical patch [m]
+    height: float = 8.0  # flight height above the nominal ground [m]
+    speed: float | None = None  # [m/s]; None: chosen to reach the sensor's target density
+    seed: int = 0
+    tilt: float = 45.0  # forward tilt of the scan plane from the nadir [deg]
+    lines_per_cloud: int = 5  # scan lines per PointCloud2 message
+    margin: float = 3.0  # ground (and grass) beyond the site's edge [m]
+    frame_id: str = 'map'
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    terrain: TerrainConfig = field(default_factory=lambda: TerrainConfig(wavelength=3.0,
+                                                                         octaves=3))
+
+    def validate(self) -> None:
+        """Raise :class:`SimulationError` naming the first nonsensical parameter."""
+        def finite(name: str, low: float, high: float) -> None:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value)
+                    and low <= value <= high):
+                raise SimulationError(f'flight {name} must lie in [{low:g}, {high:g}], '
+                                      f'got {value!r}')
+        finite('size', 4.0, 200.0)
+        finite('grass_density', 0.0, 5000.0)
+        finite('grass_height', 0.0, 1.5)
+        finite('height', 2.0, 100.0)
+        finite('tilt', 0.0, 60.0)
+        finite('margin', 0.0, 50.0)
+        if self.speed is not None:
+            finite('speed', 0.1, 50.0)
+        if not isinstance(self.obstacles, int) or self.obstacles < 0:
+            raise SimulationError(f'flight obstacles must be a non-negative integer, got '
+                                  f'{self.obstacles!r}')
+        if not isinstance(self.lines_per_cloud, int) or self.lines_per_cloud < 1:
+            raise SimulationError('flight lines_per_cloud must be a positive integer')
+        if not isinstance(self.seed, int) or self.seed < 0:
+            raise SimulationError(f'flight seed must be a non-negative integer, got '
+                                  f'{self.seed!r}')
+        if self.obstacles and not self.kinds:
+            raise SimulationError('flight kinds must name at least one obstacle kind')
+        unknown = [k for k in self.kinds if k not in KINDS]
+        if unknown:
+            raise SimulationError(f'unknown obstacle kind {unknown[0]!r}; choose from '
+                                  f'{", ".join(KINDS)}')
+        # Obstacles sit at least 1 m inside the site, 1.5 m apart: a loose packing bound.
+        inner = self.size - 2.0
+        capacity = int((inner / _MIN_SEPARATION + 1) ** 2 * 0.5)
+        if self.obstacles > capacity:
+            raise SimulationError(f'{self.obstacles} obstacles do not fit {_MIN_SEPARATION} m '
+                                  f'apart on a {self.size:g} m site (at most about {capacity})')
+        if not self.frame_id:
+            raise SimulationError('flight frame_id must not be empty')
+        self.sensor.validate()
+        self.terrain.validate()
+
+    def to_json(self) -> dict:
+        out = asdict(self)
+        out['kinds'] = list(self.kinds)
+        return out
+
+
+@dataclass
+class Site:
+    """The world of a flight and its ground truth."""
+
+    config: FlightConfig
+    world: World
+    lo: np.ndarray  # (2,) site corner [m]
+    hi: np.ndarray  # (2,)
+
+    @property
+    def obstacles(self) -> list[Obstacle]:
+        return self.world.obstacles
+
+
+@dataclass
+class FlightResult:
+    """What :func:`simulate_flight` wrote and measured."""
+
+    bag: Path
+    labels: Path
+    clouds: int
+    points: int
+    duration: float  # flight time covered by the bag [s]
+    speed: float  # [m/s]
+    passes: int
+    density: float  # returns per m^2 over the site
+    unsafe_tiles: int
+    tiles: int
+    timings: dict[str, float]
+
+    def summary(self) -> dict[str, Any]:
+        out = asdict(self)
+        out['bag'], out['labels'] = str(self.bag), str(self.labels)
+        out['timings'] = {k: round(v, 3) for k, v in self.timings.items()}
+        for k in ('duration', 'speed', 'density'):
+            out[k] = round(out[k], 3)
+        return out
+
+
+def polygon_overlaps_square(polygon: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                            eps: float = 1e-9) -> bool:
+    """Whether a convex polygon and an axis-aligned square overlap with positive area.
+
+    Separating axis theorem: two convex shapes are disjoint exactly when, on one of their edge
+    normals, their projections do not overlap (touching edges count as disjoint).
+    """
+    square = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    edges = np.concatenate([np.roll(polygon, -1, axis=0) - polygon, [[1.0, 0.0], [0.0, 1.0]]])
+    for e in edges:
+        n = np.array([-e[1], e[0]])
+        a, b = polygon @ n, square @ n
+        if a.max() <= b.min() + eps or b.max() <= a.min() + eps:
+            return False
+    return True
+
+
+def tile_labels(obstacles: list[Obstacle], lo: np.ndarray, hi: np.ndarray,
+                tile_size: float = 1.0) -> list[dict[str, Any]]:
+    """Every tile of the global lattice that overlaps [lo, hi], safe unless a footprint overlaps.
+
+    Tile ``k`` covers ``[k * tile_size, (k + 1) * tile_size)``; its centre is
+    ``(k + 0.5) * tile_size``.
+    """
+    k0 = np.floor(np.asarray(lo) / tile_size + 1e-9).astype(int)
+    k1 = np.ceil(np.asarray(hi) / tile_size - 1e-9).astype(int)
+    footprints = [o.footprint() for o in obstacles]
+    tiles = []
+    for ky in range(k0[1], k1[1]):
+        for kx in range(k0[0], k1[0]):
+            t_lo = np.array([kx, ky], dtype=float) * tile_size
+            t_hi = t_lo + tile_size
+            safe = not any(polygon_overlaps_square(fp, t_lo, t_hi) for fp in footprints)
+            tiles.append({'x': round((kx + 0.5) * tile_size, 6),
+                          'y': round((ky + 0.5) * tile_size, 6), 'safe': safe})
+    return tiles
+
+
+def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0) -> Site:
+    """Ground, patchy grass and obstacles of a flight's site."""
+    half = 0.5 * config.size
+    lo, hi = np.array([-half, -half]), np.array([half, half])
+    terrain = Terrain(config.terrain, rng, lo - config.margin, hi + config.margin)
+    # Patches: one noise field shapes where grass grows and how dense, another its height.
+    patches = PerlinNoise(rng, wavelength=7.0, octaves=2)
+    tallness = PerlinNoise(rng, wavelength=5.0, octaves=1)
+
+    def density_scale(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        # Scale 1 is a typical patch; below -0.25 the noise leaves clearings of open ground.
+        return np.clip((patches(x, y) + 0.25) / 0.5, 0.0, 2.0) / 2.0
+
+    def height_scale(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return np.clip(1.0 + 0.8 * tallness(x, y), 0.4, 1.6)
+
+    g = config.grass_height
+    grass_cfg = GrassConfig(density=2.0 * config.grass_density, height_mean=g)
+    region = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    region = region + np.sign(region) * min(config.margin, 1.0)
+    grass = grass_mesh(grass_cfg, terrain, rng, region, density_scale, height_scale)
+    obstacles = _place_obstacles(config, terrain, rng, lo, hi)
+    world = World(terrain, grass, obstacles)
+    world.caster(threads)
+    return Site(config, world, lo, hi)
+
+
+def _place_obstacles(config: FlightConfig, terrain: Terrain, rng: np.random.Generator,
+                     lo: np.ndarray, hi: np.ndarray) -> list[Obstacle]:
+    out: list[Obstacle] = []
+    centres: list[np.ndarray] = []
+    for i in range(config.obstacles):
+        kind = config.kinds[i % len(config.kinds)]
+        choices = sorted(models((kind,)), key=lambda m: m.name)
+        model = choices[int(rng.integers(len(choices)))]
+        for _ in range(10_000):
+            c = rng.uniform(lo + 1.0, hi - 1.0)
+            if all(np.hypot(*(c - o)) >= _MIN_SEPARATION for o in centres):
+                break
+        else:
+            raise SimulationError(f'could not place {config.obstacles} obstacles '
+                                  f'{_MIN_SEPARATION} m apart on the site')
+        centres.append(c)
+        out.append(place(model, float(c[0]), float(c[1]), float(rng.uniform(0, 2 * np.pi)),
+                         terrain))
+    return out
+
+
+def _passes(config: FlightConfig) -> np.ndarray:
+    """Cross-track positions (y) of the passes: every site point within half a swath of one."""
+    swath_half = config.height * math.tan(math.radians(_SWATH_ANGLE)) / math.cos(
+        math.radians(config.tilt))
+    n = max(1, math.ceil(config.size / (2.0 * swath_half)))
+    return -0.5 * config.size + (np.arange(n) + 0.5) * config.size / n
+
+
+def _density_constant(config: FlightConfig, passes: np.ndarray) -> float:
+    """K such that the mean density over the site on flat ground is K / speed [1/m^2 * m/s].
+
+    A line lands ``height * tan(tilt)`` ahead; along it, at scan angle theta, consecutive
+    pulses lie ``height * res / (cos(tilt) cos^2(theta))`` apart (y = h tan(theta) / cos(tilt)),
+    and lines lie ``speed * line_period`` apart along x. Summed over the passes and averaged
+    across the site.
+    """
+    s = config.sensor
+    tilt = math.radians(config.tilt)
+    res = math.radians(s.angular_resolution)
+    half_fov = math.radians(0.5 * s.fov_horizontal)
+    y = np.linspace(-0.5 * config.size, 0.5 * config.size, 2001)
+    theta = np.arctan((y[:, None] - passes[None, :]) * math.cos(tilt) / config.height)
+    cover = np.where(np.abs(theta) <= half_fov, np.cos(theta) ** 2, 0.0).sum(axis=1)
+    return float(math.cos(tilt) / (s.line_period * res * config.height) * cover.mean())
+
+
+def _quaternion(heading: np.ndarray, tilt: float) -> np.ndarray:
+    """(n, 4) xyzw: yaw ``heading`` about z, then pitch so the sensor's x axis is the central
+    beam (pitched down by 90 deg - tilt)."""
+    pitch = 0.5 * math.pi - tilt
+    cy, sy = np.cos(0.5 * heading), np.sin(0.5 * heading)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    # q_z(heading) * q_y(pitch)
+    return np.stack([-sy * sp, cy * sp, sy * cp, cy * cp], axis=-1)
+
+
+class _Lawnmower:
+    """Passes along +x / -x (alternating) at constant speed, joined by straight turns."""
+
+    def __init__(self, config: FlightConfig, passes: np.ndarray, speed: float) -> None:
+        half = 0.5 * config.size
+        ahead = config.height * math.tan(math.radians(config.tilt))
+        run = 1.0  # [m] scanned beyond the site's edge at both ends
+        self.height = config.height
+        self.speed = speed
+        self.segments = []  # (t0, t1, start xy, end xy, heading, scanning)
+        t = 0.0
+        prev_end = None
+        for k, y in enumerate(passes):
+            sign = 1.0 if k % 2 == 0 else -1.0
+            # The ground line lies `ahead` in front: the vehicle runs from before the site
+            # until the line has crossed it.
+            x0 = sign * (-half - run - ahead)
+            x1 = sign * (half + run - ahead)
+            start, end = np.array([x0, y]), np.array([x1, y])
+            if prev_end is not None:
+                dt = float(np.hypot(*(start - prev_end))) / speed
+                heading = math.atan2(*(start - prev_end)[::-1])
+                self.segments.append((t, t + dt, prev_end, start, heading, False))
+                t += dt
+            dt = abs(x1 - x0) / speed
+            self.segments.append((t, t + dt, start, end, 0.0 if sign > 0 else math.pi, True))
+            t += dt
+            prev_end = end
+        self.duration = t
+
+    def __call__(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        times = np.asarray(times, dtype=float)
+        pos = np.zeros((len(times), 3))
+        heading = np.zeros(len(times))
+        for t0, t1, a, b, h, _ in self.segments:
+            m = (times >= t0) & (times <= t1)
+            f = ((times[m] - t0) / (t1 - t0))[:, None]
+            pos[m, :2] = a + f * (b - a)
+            heading[m] = h
+        pos[:, 2] = self.height
+        return pos, heading
+
+
+def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: bool = False,
+                    threads: int = 0) -> FlightResult:
+    """Simulate a flight and write ``out`` (.mcap) and ``out``'s ``.labels.json``.
+
+    Args:
+        config: site and flight.
+        out: bag path (``SITE.mcap``); the labels go to ``SITE.labels.json`` beside it.
+        overwrite: replace existing outputs.
+        threads: Embree threads (0: all cores).
+
+    Raises:
+        SimulationError: nonsensical parameters (checked before any work).
+        BagError: the bag cannot be written.
+    """
+    config.validate()
+    out = Path(out)
+    if out.suffix != '.mcap':
+        raise SimulationError(f'the flight bag must be a .mcap file, got {out}')
+    labels_path = out.with_name(out.stem + '.labels.json')
+    if not overwrite:
+        for p in (out, labels_path):
+            if p.exists():
+                raise BagError(f'{p} exists already (not overwriting)')
+    timings: dict[str, float] = {}
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0xF11]))
+    t0 = time.perf_counter()
+    site = build_site(config, rng, threads)
+    timings['site'] = time.perf_counter() - t0
+
+    passes = _passes(config)
+    k = _density_constant(config, passes)
+    speed = config.speed if config.speed is not None else k / config.sensor.target_density
+    speed = float(speed)
+    path = _Lawnmower(config, passes, speed)
+    tilt = math.radians(config.tilt)
+    walk = BrownianWalk(config.sensor.wander_sigma, rng)
+    caster = site.world.caster(threads)
+    t0 = time.perf_counter()
+    # Per segment of the path: the scanned chunks of a pass, None for a turn.
+    scans: list[list[Returns] | None] = []
+    per_chunk = 40 * config.lines_per_cloud
+    for seg in path.segments:
+        scans.append(path_scan(caster, config.sensor, path, seg[0], seg[1], tilt, rng,
+                               walk=walk, lines_per_chunk=per_chunk) if seg[5] else None)
+    timings['scan'] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    tiles = tile_labels(site.obstacles, site.lo, site.hi)
+    n_clouds, n_points, on_site = _write_bag(out, config, scans, path, overwrite)
+    labels = {'frame_id': config.frame_id, 'tile_size': 1.0, 'tiles': tiles,
+              'obstacles': [o.to_json() for o in site.obstacles],
+              'site': {'lo': site.lo.tolist(), 'hi': site.hi.tolist()},
+              'flight': config.to_json() | {'speed': speed, 'passes': passes.tolist()}}
+    tmp = labels_path.with_name(labels_path.name + '.tmp')
+    tmp.write_text(json.dumps(labels, indent=1) + '\n', encoding='utf-8')
+    os.replace(tmp, labels_path)
+    timings['write'] = time.perf_counter() - t0
+    area = float(np.prod(site.hi - site.lo))
+    return FlightResult(out, labels_path, n_clouds, n_points, path.duration, speed, len(passes),
+                        on_site / area, sum(not t['safe'] for t in tiles), len(tiles), timings)
+
+
+def _write_bag(out: Path, config: FlightConfig, scans: list[list[Returns] | None],
+               path: _Lawnmower, overwrite: bool) -> tuple[int, int, int]:
+    """Clouds of ``lines_per_cloud`` lines with a pose each; poses alone while turning.
+
+    Messages go in stamp order (a pose just before the cloud of the same stamp).
+    """
+    from landing_zone.bagio import BagWriter, typestore
+    from msg_adapters import MessageTypes, make_header
+    from msg_adapters.pointcloud import make_cloud, points_to_structured
+    from msg_adapters.pose import make_pose_stamped
+
+    types = MessageTypes.rosbags(typestore())
+    tilt = math.radians(config.tilt)
+    half = 0.5 * config.size
+    n_clouds = n_points = on_site = 0
+    with BagWriter(out, overwrite=overwrite) as bag:
+        bag.add_topic('/lidar/points', 'sensor_msgs/msg/PointCloud2')
+        bag.add_topic('/lidar/pose', 'geometry_msgs/msg/PoseStamped')
+        for (t0, t1, _, _, _, _), chunks in zip(path.segments, scans):
+            if chunks is None:
+                times = np.arange(t0, t1, 1.0 / _TURN_POSE_RATE)
+                pos, heading = path(times)
+                for t, p, q in zip(times, pos, _quaternion(heading, tilt)):
+                    stamp = START_TIME_NS + int(round(t * 1e9))
+                    bag.write('/lidar/pose', stamp,
+                              make_pose_stamped(stamp, config.frame_id, p, q, types))
+                continue
+            for chunk in chunks:
+                n_lines = len(chunk.line_times)
+                order = np.argsort(chunk.line, kind='stable')
+                bounds = np.searchsorted(chunk.line[order], np.arange(
+                    0, n_lines + config.lines_per_cloud, config.lines_per_cloud))
+                _, heading = path(chunk.line_times)
+                quats = _quaternion(heading, tilt)
+                for c in range(len(bounds) - 1):
+                    first = c * config.lines_per_cloud
+                    if first >= n_lines:
+                        break
+                    # Stamp and pose: the middle line of the cloud (its origin exactly).
+                    mid = min(first + config.lines_per_cloud // 2, n_lines - 1)
+                    stamp = START_TIME_NS + int(round(chunk.line_times[mid] * 1e9))
+                    sel = order[bounds[c]:bounds[c + 1]]
+                    xyz = chunk.points[sel].astype(np.float32)
+                    arr = points_to_structured(xyz, {'intensity': chunk.intensity[sel],
+                                                     'label': chunk.labels[sel]})
+                    bag.write('/lidar/pose', stamp,
+                              make_pose_stamped(stamp, config.frame_id,
+                                                chunk.line_origins[mid], quats[mid], types))
+                    bag.write('/lidar/points', stamp,
+                              make_cloud(arr, make_header(stamp, config.frame_id, types), types))
+                    n_clouds += 1
+                    n_points += len(sel)
+                    on_site += int(np.count_nonzero(np.all(np.abs(xyz[:, :2]) < half,
+                                                           axis=1)))
+    return n_clouds, n_points, on_site

@@ -1,0 +1,200 @@
+"""Pictures of simulated returns: side and top view, coloured by what each return hit.
+
+Like the paper's Fig. 3: ground brown, grass green, obstacles red. A dataset scene shows its
+tile and padded column; a flight shows the site, its unsafe tiles and the obstacles' footprints
+(from ``SITE.labels.json`` beside the bag).
+
+matplotlib is used through its object API with the Agg canvas (no global backend state, no
+display needed).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from landing_zone.errors import BagError, DatasetError, SimulationError
+from landing_zone.sim.mesh import GRASS, GROUND, OBSTACLE
+
+__all__ = ['render', 'render_points', 'CLASS_COLOURS']
+
+CLASS_COLOURS = {GROUND: '#8c6d46', GRASS: '#3f9b3a', OBSTACLE: '#d62728'}
+_NAMES = {GROUND: 'ground', GRASS: 'grass', OBSTACLE: 'obstacle'}
+_MAX_PLOTTED = 400_000  # points per view; more only blurs the picture and costs seconds
+
+
+def _figure(width: float, height: float) -> Any:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(width, height), dpi=110)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _scatter(ax: Any, a: np.ndarray, b: np.ndarray, labels: np.ndarray | None, size: float
+             ) -> None:
+    if labels is None:
+        ax.scatter(a, b, s=size, c='0.3', linewidths=0, rasterized=True)
+        return
+    # Obstacles last: on top of the grass that surrounds them.
+    for cls in (GROUND, GRASS, OBSTACLE):
+        m = labels == cls
+        if np.any(m):
+            ax.scatter(a[m], b[m], s=size, c=CLASS_COLOURS[cls], linewidths=0,
+                       label=f'{_NAMES[cls]} ({int(m.sum()):,})', rasterized=True)
+
+
+def render_points(points: np.ndarray, labels: np.ndarray | None, out: str | os.PathLike,
+                  title: str = '', boxes: list[tuple[np.ndarray, np.ndarray, str]] = (),
+                  polygons: list[tuple[np.ndarray, str]] = (),
+                  side_band: tuple[float, float] | None = None,
+                  side_window: tuple[float, float] | None = None, seed: int = 0) -> Path:
+    """Top view (x-y) and side view (x-z) of returns, coloured by class.
+
+    Args:
+        points: (N, 3) returns.
+        labels: (N,) class of each return, or None (grey).
+        out: PNG path.
+        title: figure title.
+        boxes: axis-aligned rectangles (lo (2,), hi (2,), colour) drawn in the top view.
+        polygons: closed polygons ((K, 2), colour) drawn in the top view.
+        side_band: only returns with y in this band appear in the side view (a slice).
+        side_window: ... and only those with x in this range (a close-up).
+        seed: subsampling of very large clouds.
+
+    Returns:
+        The PNG path.
+    """
+    from matplotlib.patches import Polygon, Rectangle
+    points = np.asarray(points, dtype=float)
+    if len(points) > _MAX_PLOTTED:
+        keep = np.sort(np.random.default_rng(seed).choice(len(points), _MAX_PLOTTED,
+                                                           replace=False))
+        points = points[keep]
+        labels = labels[keep] if labels is not None else None
+    size = float(np.clip(2000.0 / max(len(points), 1) ** 0.5, 0.05, 4.0))
+    fig = _figure(13.0, 6.5)
+    top, side = fig.subplots(1, 2, gridspec_kw={'width_ratios': [1.0, 1.3]})
+    _scatter(top, points[:, 0], points[:, 1], labels, size)
+    for lo, hi, colour in boxes:
+        top.add_patch(Rectangle(lo, *(np.asarray(hi) - lo), fill=False, ec=colour, lw=1.0))
+    for poly, colour in polygons:
+        top.add_patch(Polygon(poly, closed=True, fill=False, ec=colour, lw=1.2))
+    top.set_aspect('equal')
+    top.set_xlabel('x [m]')
+    top.set_ylabel('y [m]')
+    top.set_title('top view')
+    sel = np.ones(len(points), bool)
+    if side_band is not None:
+        sel &= (points[:, 1] >= side_band[0]) & (points[:, 1] < side_band[1])
+    if side_window is not None:
+        sel &= (points[:, 0] >= side_window[0]) & (points[:, 0] < side_window[1])
+    _scatter(side, points[sel, 0], points[sel, 2], labels[sel] if labels is not None else None,
+             size * 1.5)
+    side.set_xlabel('x [m] (direction of flight)')
+    side.set_ylabel('z [m]')
+    band = '' if side_band is None else f', {side_band[0]:.2f} <= y < {side_band[1]:.2f} m'
+    side.set_title(f'side view{band}')
+    if np.any(sel):
+        z = points[sel, 2]
+        side.set_ylim(z.min() - 0.2, z.max() + 0.4)
+        side.set_aspect('equal', adjustable='box')
+    if labels is not None:
+        side.legend(loc='upper right', markerscale=max(2.0, 6.0 / size ** 0.5), fontsize=8)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out)
+    return out
+
+
+def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
+    from landing_zone.sim.dataset import SceneDataset
+    ds = SceneDataset(root, split)
+    if not -len(ds) <= index < len(ds):
+        raise DatasetError(f'scene {index} out of range: {root} ({split}) holds {len(ds)}')
+    scene = ds[index]
+    p = scene.params
+    boxes = [(np.array([-0.5, -0.5]), np.array([0.5, 0.5]), 'k'),
+             (np.array([-0.8, -0.8]), np.array([0.8, 0.8]), '0.6')]
+    polygons = []
+    if p.get('obstacle'):
+        from landing_zone.sim.obstacles import Obstacle, get_model
+        ob = p['obstacle']
+        placed = Obstacle(get_model(ob['model']), ob['x'], ob['y'], ob['z'], ob['yaw'])
+        polygons.append((placed.footprint(), CLASS_COLOURS[OBSTACLE]))
+    title = (f"{p.get('dataset')} scene {p.get('index')} ({p.get('split')}): "
+             f"{'unsafe, ' + p['obstacle']['model'] if p.get('obstacle') else 'safe'}; "
+             f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor at "
+             f"x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up, "
+             f"{len(scene.points):,} returns")
+    # The column and a little around it: far returns of rays that passed above the tile are
+    # kept in the data but would shrink the tile to a dot.
+    near = np.all(np.abs(scene.points[:, :2]) < 1.5, axis=1)
+    return render_points(scene.points[near], scene.hit_class[near], out, title, boxes,
+                         polygons, side_band=(-0.5, 0.5))
+
+
+def _render_flight(bag: Path, out: Path) -> Path:
+    from landing_zone.bagio import read_messages
+    from msg_adapters.pointcloud import cloud_to_structured
+    parts, labels = [], []
+    has_labels = True
+    for m in read_messages(bag, topics=['/lidar/points']):
+        arr = cloud_to_structured(m.msg)
+        parts.append(np.stack([arr['x'], arr['y'], arr['z']], axis=1).astype(np.float32))
+        if has_labels and 'label' in arr.dtype.names:
+            labels.append(arr['label'].astype(np.uint8))
+        else:
+            has_labels = False
+    if not parts:
+        raise BagError(f'{bag} holds no /lidar/points clouds')
+    points = np.concatenate(parts)
+    cls = np.concatenate(labels) if has_labels else None
+    boxes, polygons = [], []
+    truth = bag.with_name(bag.stem + '.labels.json')
+    title = f'{bag.name}: {len(points):,} returns'
+    band = window = None
+    if truth.exists():
+        info = json.loads(truth.read_text(encoding='utf-8'))
+        ts = float(info.get('tile_size', 1.0))
+        for t in info['tiles']:
+            if not t['safe']:
+                c = np.array([t['x'], t['y']])
+                boxes.append((c - ts / 2, c + ts / 2, '#ff7f0e'))
+        from landing_zone.sim.obstacles import Obstacle, get_model
+        for ob in info['obstacles']:
+            placed = Obstacle(get_model(ob['model']), ob['x'], ob['y'], ob['z'], ob['yaw'])
+            polygons.append((placed.footprint(), 'k'))
+        if 'site' in info:
+            lo, hi = np.array(info['site']['lo']), np.array(info['site']['hi'])
+            boxes.append((lo, hi, '0.2'))
+        title += f", {len(info['obstacles'])} obstacles, {len(boxes) - 1} unsafe tiles (orange)"
+        if info['obstacles']:
+            ob = info['obstacles'][0]
+            band = (ob['y'] - 0.5, ob['y'] + 0.5)
+            window = (ob['x'] - 4.0, ob['x'] + 4.0)
+    return render_points(points, cls, out, title, boxes, polygons, side_band=band,
+                         side_window=window)
+
+
+def render(source: str | os.PathLike, out: str | os.PathLike, index: int = 0,
+           split: str = 'all') -> Path:
+    """Render a dataset scene (``source`` a dataset directory) or a flight (a ``.mcap`` bag).
+
+    Raises:
+        SimulationError: ``source`` is neither.
+        DatasetError, BagError: it cannot be read.
+    """
+    source, out = Path(source), Path(out)
+    if out.suffix.lower() != '.png':
+        raise SimulationError(f'render writes a .png file, got {out}')
+    if source.is_dir() and (source / 'meta.json').exists():
+        return _render_scene(source, out, index, split)
+    if source.suffix == '.mcap' and source.exists():
+        return _render_flight(source, out)
+    raise SimulationError(f'{source} is neither a dataset directory nor a .mcap flight bag')
