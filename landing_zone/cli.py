@@ -175,6 +175,9 @@ def simulate(
           f'worker(s), {s["scenes_per_s"]:.1f} scenes/s; {s["bytes"] / 1e6:.1f} MB')
 
 
+_KINDS = 'rock,tire,cinder_block,box'
+
+
 @app.command(name='simulate-flight',
              help='A flight over a simulated landing site (grass patches, obstacles) as a ROS 2 '
                   'bag: /lidar/points (PointCloud2) and /lidar/pose (PoseStamped) in frame map; '
@@ -187,8 +190,7 @@ def simulate_flight(
     size: Annotated[float, typer.Option(help='Edge of the square site [m].')] = 20.0,
     obstacles: Annotated[int, typer.Option(help='Number of obstacles.')] = 6,
     kinds: Annotated[str, typer.Option(
-        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box).')]
-        = 'rock,tire,cinder_block,box',
+        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box).')] = _KINDS,
     grass_density: Annotated[float, typer.Option(
         help='Blades per m^2 of a typical patch.')] = 600.0,
     grass_height: Annotated[float, typer.Option(help='Mean blade height [m].')] = 0.25,

@@ -71,8 +71,8 @@ def render_points(points: np.ndarray, labels: np.ndarray | None, out: str | os.P
     from matplotlib.patches import Polygon, Rectangle
     points = np.asarray(points, dtype=float)
     if len(points) > _MAX_PLOTTED:
-        keep = np.sort(np.random.default_rng(seed).choice(len(points), _MAX_PLOTTED,
-                                                           replace=False))
+        pick = np.random.default_rng(seed).choice(len(points), _MAX_PLOTTED, replace=False)
+        keep = np.sort(pick)
         points = points[keep]
         labels = labels[keep] if labels is not None else None
     size = float(np.clip(2000.0 / max(len(points), 1) ** 0.5, 0.05, 4.0))
