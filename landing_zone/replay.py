@@ -265,17 +265,14 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
     nx, ny = assessment.shape
     extent = (x0, x0 + nx * ts, y0, y0 + ny * ts)
     fig, ax = plt.subplots(figsize=(7.5, 7.0), dpi=110)
-    pts = np.asarray(top_view)
-    if len(pts):
-        inside = ((pts[:, 0] >= extent[0]) & (pts[:, 0] < extent[1])
-                  & (pts[:, 1] >= extent[2]) & (pts[:, 1] < extent[3]))
-        pts = pts[inside]
-    if len(pts):
-        ax.scatter(pts[:, 0], pts[:, 1], c=pts[:, 2], s=0.3, cmap='Greys_r', alpha=0.8,
-                   linewidths=0, rasterized=True)
+    heights = _height_image(np.asarray(top_view, np.float64), extent, cell=0.1)
+    if heights is not None:
+        lo, hi = np.nanpercentile(heights, [2, 98]) if np.isfinite(heights).any() else (0, 1)
+        ax.imshow(np.ma.masked_invalid(heights).T, origin='lower', extent=extent,
+                  cmap='Greys_r', vmin=lo, vmax=max(hi, lo + 1e-3), interpolation='nearest')
     p = assessment.grid(assessment.p_safe)
     img = ax.imshow(np.ma.masked_invalid(p).T, origin='lower', extent=extent, cmap='RdYlGn',
-                    vmin=0.0, vmax=1.0, alpha=0.55, interpolation='nearest')
+                    vmin=0.0, vmax=1.0, alpha=0.5, interpolation='nearest')
     unknown = ~np.isfinite(p)
     for i, j in zip(*np.nonzero(unknown)):
         ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
@@ -305,6 +302,24 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
         raise BagError(f'cannot write {path}: {err.strerror}') from err
     finally:
         plt.close(fig)
+
+
+def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],
+                  cell: float) -> np.ndarray | None:
+    """Highest return per ``cell``-sized pixel of the extent (NaN where none), x-major."""
+    if len(points) == 0:
+        return None
+    nx = max(1, int(round((extent[1] - extent[0]) / cell)))
+    ny = max(1, int(round((extent[3] - extent[2]) / cell)))
+    i = np.floor((points[:, 0] - extent[0]) / cell).astype(np.int64)
+    j = np.floor((points[:, 1] - extent[2]) / cell).astype(np.int64)
+    ok = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & np.isfinite(points[:, 2])
+    if not ok.any():
+        return None
+    img = np.full(nx * ny, -np.inf)
+    np.maximum.at(img, i[ok] * ny + j[ok], points[ok, 2])
+    img[np.isinf(img)] = np.nan
+    return img.reshape(nx, ny)
 
 
 def _obstacles(labels: str | os.PathLike[str]) -> list[np.ndarray]:
