@@ -8,6 +8,7 @@ line on stderr and exit status 2, never a traceback.
 from __future__ import annotations
 
 import sys
+import time
 from enum import Enum
 from pathlib import Path
 from typing import Annotated, Optional
@@ -146,6 +147,130 @@ def play(
           f'{stats.seconds:.1f} s; at most {stats.late * 1000:.0f} ms late')
 
 
+# --- train / tune / evaluate ------------------------------------------------------------------
+
+class Device(str, Enum):
+    cpu = 'cpu'
+    cuda = 'cuda'
+
+
+@app.command(help='Train the safety CNN on a dataset\'s train split (augmented on the fly), '
+                  'calibrate it on held-out scenes and write it with its configuration.\n\n'
+                  'Beside OUT: OUT.train.safetensors (state for --resume), OUT.log.csv.\n\n'
+                  'Examples:\n\n  landing-zone train --data data/synth2 '
+                  '--arch C7-F32-P2-C5-F64-P2-D512 --out model.safetensors\n\n'
+                  '  landing-zone train --data data/synth2 --out model.safetensors --resume\n\n'
+                  '  landing-zone train --data data/synth2 --out m.safetensors --device cuda '
+                  '--workers 15 --cache-voxels 20')
+def train(
+    data: Annotated[Path, typer.Option(help='Dataset directory (landing-zone simulate).')],
+    out: Annotated[Path, typer.Option(help='Model file to write (.safetensors).')],
+    arch: Annotated[str, typer.Option(help='Network spec.')] = 'C7-F32-P2-C5-F64-P2-D512',
+    epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
+    lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
+    momentum: Annotated[float, typer.Option(help='SGD momentum.')] = 0.9,
+    weight_decay: Annotated[float, typer.Option(help='L2 penalty.')] = 5e-4,
+    batch_size: Annotated[int, typer.Option(help='Samples per minibatch.')] = 20,
+    augment_copies: Annotated[int, typer.Option(
+        help='Augmented samples of every scene per epoch.')] = 20,
+    max_samples: Annotated[int, typer.Option(
+        help='Cap on samples per epoch (0: none).')] = 0,
+    val_fraction: Annotated[float, typer.Option(
+        help='Share of training scenes held out for validation and calibration.')] = 0.1,
+    workers: Annotated[int, typer.Option(help='Data loader processes (0: in-process).')] = 0,
+    seed: Annotated[int, typer.Option(
+        help='Seed of initialisation, split and augmentation.')] = 0,
+    device: Annotated[Device, typer.Option(help='Where to train.')] = Device.cpu,
+    dropout: Annotated[float, typer.Option(help='Dropout after each layer.')] = 0.5,
+    cache_voxels: Annotated[int, typer.Option(
+        help='Pre-voxelize this many augmented copies per scene once (0: on the fly).')] = 0,
+    checkpoint_minutes: Annotated[float, typer.Option(
+        help='Also save the training state this often within an epoch.')] = 10.0,
+    precision: Annotated[str, typer.Option(
+        help='auto (bf16 on CUDA, fp32 on CPU), fp32 or bf16.')] = 'auto',
+    resume: Annotated[bool, typer.Option(
+        help='Continue from OUT.train.safetensors if it exists.')] = False,
+    init: Annotated[Optional[Path], typer.Option(
+        help='Start from this model\'s weights (same spec).')] = None,
+) -> None:
+    from landing_zone.train import TrainConfig, train as run_train
+
+    cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, momentum=momentum,
+                      weight_decay=weight_decay, batch_size=batch_size,
+                      augment_copies=augment_copies, max_samples=max_samples,
+                      val_fraction=val_fraction, workers=workers, seed=seed,
+                      device=device.value, dropout=dropout, cache_voxels=cache_voxels,
+                      checkpoint_minutes=checkpoint_minutes, precision=precision)
+    s = run_train(data, out, cfg, resume=resume, init=init)
+    print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
+          f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
+          f'at temperature {s["temperature"]:.3f}; log {s["log"]}')
+
+
+@app.command(help='Random search over the paper\'s architecture space (Optuna), resumable '
+                  'from its storage; prints the trials best first.\n\n'
+                  'Examples:\n\n  landing-zone tune --data data/synth1 --trials 10\n\n'
+                  '  landing-zone tune --data data/synth1 --trials 50 --paper-budget '
+                  '--storage sqlite:///tune.db')
+def tune(
+    data: Annotated[Path, typer.Option(help='Dataset directory (the paper uses synth1).')],
+    trials: Annotated[int, typer.Option(help='Finished trials the study should hold.')] = 10,
+    storage: Annotated[str, typer.Option(help='Optuna storage URL.')] = 'sqlite:///tune.db',
+    budget_samples: Annotated[int, typer.Option(
+        help='Training samples per epoch of each trial (0: all).')] = 2000,
+    epochs: Annotated[int, typer.Option(help='Epochs per trial.')] = 2,
+    paper_budget: Annotated[bool, typer.Option(
+        help='Full training per trial (6 epochs x 20 copies, no cap).')] = False,
+    out_dir: Annotated[Path, typer.Option(
+        help='Where the trial models go.')] = Path('tune_models'),
+    workers: Annotated[int, typer.Option(help='Data loader processes.')] = 0,
+    device: Annotated[Device, typer.Option(help='Where to train.')] = Device.cpu,
+    seed: Annotated[int, typer.Option(help='Seed of the search and the trainings.')] = 0,
+) -> None:
+    from landing_zone.tune import TuneConfig, format_rows, tune as run_tune
+
+    common = dict(trials=trials, workers=workers, device=device.value, seed=seed)
+    cfg = (TuneConfig.paper(**common) if paper_budget
+           else TuneConfig(epochs=epochs, max_samples=budget_samples, **common))
+    print(format_rows(run_tune(data, cfg, storage=storage, out_dir=out_dir)))
+
+
+class Split(str, Enum):
+    test = 'test'
+    train = 'train'
+
+
+@app.command(help='ROC / AUC, calibration (ECE) and timing on a dataset split, for the CNN and '
+                  'with --baselines the paper\'s baselines; the table like the paper\'s Table '
+                  'II on stdout.\n\n'
+                  'Examples:\n\n  landing-zone evaluate --data data/synth2 --model '
+                  'model.safetensors --out-dir eval\n\n'
+                  '  landing-zone evaluate --data data/synth2 --baselines --json results.json')
+def evaluate(
+    data: Annotated[Path, typer.Option(help='Dataset directory.')],
+    model: Annotated[Optional[Path], typer.Option(
+        help='Model file; default the shipped one.')] = None,
+    baselines: Annotated[bool, typer.Option(help='Also evaluate the baselines.')] = False,
+    json_path: Annotated[Optional[Path], typer.Option(
+        '--json', help='Write RESULTS.json here.')] = None,
+    out_dir: Annotated[Optional[Path], typer.Option(
+        help='Write table.md, ROC and reliability plots and the look inside here.')] = None,
+    split: Annotated[Split, typer.Option(help='Dataset split.')] = Split.test,
+    workers: Annotated[int, typer.Option(help='Voxelizing processes.')] = 0,
+    fit_scenes: Annotated[int, typer.Option(
+        help='Train scenes the baselines are fitted on.')] = 2000,
+    max_scenes: Annotated[int, typer.Option(
+        help='Evaluate an even subset of this many scenes (0: all).')] = 0,
+    seed: Annotated[int, typer.Option(help='Seed of the baselines.')] = 0,
+) -> None:
+    from landing_zone.evaluate import evaluate as run_evaluate
+
+    res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
+                       split=split.value, workers=workers, fit_scenes=fit_scenes,
+                       max_scenes=max_scenes, seed=seed)
+    print(res['table'], end='')
+
+
 # --- simulate ---------------------------------------------------------------------------------
 
 @app.command(help='Labelled training/test patches of the paper\'s Table I sweep (synth1: boxes, '
@@ -226,6 +351,27 @@ def render(
     from landing_zone.sim.render import render as run_render
 
     print(f'wrote {run_render(source, out, index=index, split=split)}')
+
+
+# --- demo -------------------------------------------------------------------------------------
+
+@app.command(help='The main job on the embedded default: simulate a vegetated landing-site '
+                  'flight, assess it with the shipped model, print the tile map, the AUC '
+                  'against the ground truth, and write a PNG and a report.\n\n'
+                  'Examples:\n\n  landing-zone demo\n\n'
+                  '  landing-zone demo --out-dir /tmp/lz --seed 3')
+def demo(
+    out_dir: Annotated[Path, typer.Option(help='Where the bags, report and PNG go.')]
+    = Path('lz_demo'),
+    seed: Annotated[int, typer.Option(help='Seed of the simulated site and flight.')] = 0,
+    model: Annotated[Optional[Path], typer.Option(
+        help='Model file; default the shipped one.')] = None,
+) -> None:
+    from landing_zone.demo import run_demo
+
+    t0 = time.perf_counter()
+    run_demo(out_dir, seed=seed, model=model)
+    print(f'demo done in {time.perf_counter() - t0:.0f} s')
 
 
 def main(argv: list[str] | None = None) -> None:
