@@ -8,7 +8,7 @@ straight passes along x at constant height and speed; its scanner's plane is til
 angles of the training patches) and it scans every line while on a pass. Unless given, the
 speed is chosen so that the passes together put the target density onto the site (on flat
 ground the density is inversely proportional to the speed; the constant follows from the scan
-geometry, see :func:`_density_constant`).
+geometry, see :func:`_density_constant`), up to ``max_speed``.
 
 Outputs (``../shared/CONTRACT.md``):
 
@@ -59,7 +59,8 @@ class FlightConfig:
     grass_density: float = 600.0  # blades/m^2 of a typical patch (patches: 0 to twice that)
     grass_height: float = 0.25  # mean blade height of a typical patch [m]
     height: float = 8.0  # flight height above the nominal ground [m]
-    speed: float | None = None  # [m/s]; None: chosen to reach the sensor's target density
+    speed: float | None = None  # [m/s]; None: chosen to reach the sensor's target density ...
+    max_speed: float = 10.0  # ... but no faster than this (the density then exceeds the target)
     seed: int = 0
     tilt: float = 45.0  # forward tilt of the scan plane from the nadir [deg]
     lines_per_cloud: int = 5  # scan lines per PointCloud2 message
@@ -83,6 +84,7 @@ class FlightConfig:
         finite('height', 2.0, 100.0)
         finite('tilt', 0.0, 60.0)
         finite('margin', 0.0, 50.0)
+        finite('max_speed', 0.5, 50.0)
         if self.speed is not None:
             finite('speed', 0.1, 50.0)
         if not isinstance(self.obstacles, int) or self.obstacles < 0:
@@ -351,7 +353,9 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
 
     passes = _passes(config)
     k = _density_constant(config, passes)
-    speed = config.speed if config.speed is not None else k / config.sensor.target_density
+    speed = config.speed
+    if speed is None:
+        speed = min(k / config.sensor.target_density, config.max_speed)
     speed = float(speed)
     path = _Lawnmower(config, passes, speed)
     tilt = math.radians(config.tilt)
