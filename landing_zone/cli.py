@@ -107,8 +107,10 @@ def replay(
     judged = int(a.known.sum())
     print(f'replayed {st["clouds"]} clouds ({st["points"]:,} returns, {st["dropped_clouds"]} '
           f'clouds and {st["dropped_points"]:,} returns dropped) covering '
-          f'{result.bag_seconds:.1f} s in {result.seconds:.1f} s: '
-          f'{result.realtime_factor:.1f}x real time')
+          f'{result.bag_seconds:.1f} s in {result.timings["loop"]:.1f} s: '
+          f'{result.realtime_factor:.1f}x real time (set-up {result.timings["setup"]:.1f} s; '
+          f'assessing {result.timings["assess"]:.1f} s, integrating '
+          f'{result.timings["ingest"]:.1f} s)')
     print(f'{result.assessments} assessments; final map: {judged} of {len(a)} tiles judged, '
           f'{len(a.sites)} landing site(s)'
           + (f', best at ({a.sites[0].x:.1f}, {a.sites[0].y:.1f}) with P(safe) '

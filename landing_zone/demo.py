@@ -176,8 +176,10 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     console.print(f'\nP(safe) per {a.tile_size:g} m tile ({a.frame_id} frame), '
                   f'model {model_path.name}:')
     console.print(tile_map(a, labels))
-    console.print(f'replayed at {res.realtime_factor:.1f}x real time ({res.seconds:.1f} s for '
-                  f'{res.bag_seconds:.1f} s of flight, {res.assessments} assessments)')
+    console.print(f'replayed at {res.realtime_factor:.1f}x real time '
+                  f'({res.timings["loop"]:.1f} s for {res.bag_seconds:.1f} s of flight, '
+                  f'{res.assessments} assessments, {res.timings["assess"]:.1f} s of them '
+                  'assessing)')
     console.print(f'judged {n} of {len(labels["tiles"])} tiles ({100 * fraction:.0f} %); '
                   + (f'AUC of P(safe) against the labels over them: {auc:.3f}'
                      if auc is not None else 'AUC undefined (one class among the judged)'))

@@ -138,6 +138,7 @@ class Stream:
         self.last_latency: float | None = None
         self.latencies: collections.deque[float] = collections.deque(maxlen=100)
         self.assess_seconds: collections.deque[float] = collections.deque(maxlen=100)
+        self.assess_seconds_total = 0.0
         self._integrate_times: collections.deque[tuple[float, int]] = \
             collections.deque(maxlen=50)
         self.on_drop: Callable[[str, str], None] | None = None  # (reason, message) hook
@@ -316,6 +317,12 @@ class Stream:
             return self._unassessed
 
     @property
+    def stamp_span(self) -> tuple[int | None, int | None]:
+        """Stamps [ns] of the first and the newest cloud integrated (None before any)."""
+        with self._lock:
+            return self._first_ns, self._last_integrated_ns
+
+    @property
     def pending(self) -> int:
         """Clouds waiting for their pose."""
         return len(self._pending)
@@ -333,6 +340,7 @@ class Stream:
         t1 = self.clock()
         self.assessments += 1
         self.assess_seconds.append(t1 - t0)
+        self.assess_seconds_total += t1 - t0
         if oldest is not None:
             self.last_latency = t1 - oldest
             self.latencies.append(self.last_latency)
