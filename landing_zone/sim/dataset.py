@@ -226,7 +226,7 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
     Returns:
         A record: ``points_mm`` int16 (N, 3), ``hit_class`` uint8 (N,), ``origin_index`` uint16
         (N,), ``origins`` float32 (M, 3), ``origin_times`` float32 (M,), ``label``, ``split``,
-        ``params`` (JSON-ready) and ``rays`` (cast).
+        ``params`` (JSON-ready), ``rays`` (cast) and ``timings`` (seconds per stage).
     """
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.scene import PatchConfig, simulate_patch
@@ -260,7 +260,9 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
             'origins': ret.line_origins.astype(np.float32),
             'origin_times': ret.line_times.astype(np.float32),
             'label': plan['label'], 'split': plan['split'], 'params': params,
-            'rays': patch.scan.rays}
+            'rays': patch.scan.rays,
+            # Not stored (they vary run to run): for benchmarks.
+            'timings': dict(patch.timings, cast=patch.scan.cast_seconds)}
 
 
 def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:

@@ -31,6 +31,7 @@ scan plane tilted forward by a fixed nod angle.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
@@ -182,6 +183,7 @@ class HoverScan:
     rays: int  # rays cast
     aoi_returns: int  # returns inside the area of interest
     aoi_area: float  # [m^2]
+    cast_seconds: float = 0.0  # time spent in Embree
 
     @property
     def density(self) -> float:
@@ -442,6 +444,7 @@ def hover_scan(caster: RayCaster, sensor: SensorConfig, position: np.ndarray,
     n_aoi = 0
     rays = 0
     sweep = 0
+    cast_seconds = 0.0
     while n_aoi < goal:
         if sweep * t_sweep > sensor.max_scan_time:
             raise SimulationError(
@@ -465,7 +468,9 @@ def hover_scan(caster: RayCaster, sensor: SensorConfig, position: np.ndarray,
         t_in, t_out = ray_box_interval(org, dirs, box_lo, box_hi)
         through = t_in <= t_out
         idx = np.flatnonzero(through)
+        t_cast = time.perf_counter()
         hits = caster.cast(org[idx], dirs[idx], sensor.max_range)
+        cast_seconds += time.perf_counter() - t_cast
         rays += len(idx)
         hit = hits.hit
         idx = idx[hit]
@@ -488,7 +493,7 @@ def hover_scan(caster: RayCaster, sensor: SensorConfig, position: np.ndarray,
                              origins[:last_line + 1], line_times[:last_line + 1]))
     returns = Returns.concat(parts).compact_lines()
     duration = float(np.ptp(returns.times)) if len(returns) else 0.0
-    return HoverScan(returns, omega_deg, sweep, duration, rays, n_aoi, area)
+    return HoverScan(returns, omega_deg, sweep, duration, rays, n_aoi, area, cast_seconds)
 
 
 def path_scan(caster: RayCaster, sensor: SensorConfig,
