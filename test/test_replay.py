@@ -29,7 +29,7 @@ def sensor_at(t: float) -> np.ndarray:
 
 
 def write_flight(path, seed=0, seconds=4.0, cloud_hz=5, pose_hz=20, n=2500,
-                 points_topic='/lidar/points', pose_topic='/lidar/pose'):
+                 points_topic='/lidar/points', pose_topic='/lidar/pose', storage='mcap'):
     """A small flight bag: registered clouds of flat ground with a box, poses of the sensor.
 
     Returns the (stamp_ns, xyz, origin) of every cloud, for building the expected result.
@@ -37,7 +37,7 @@ def write_flight(path, seed=0, seconds=4.0, cloud_hz=5, pose_hz=20, n=2500,
     rng = np.random.default_rng(seed)
     types = MessageTypes.rosbags()
     clouds = []
-    with BagWriter(path, overwrite=True) as bag:
+    with BagWriter(path, storage=storage, overwrite=True) as bag:
         bag.add_topic(points_topic, 'sensor_msgs/msg/PointCloud2')
         bag.add_topic(pose_topic, 'geometry_msgs/msg/PoseStamped')
         for k in range(int(seconds * pose_hz) + 1):
@@ -140,6 +140,17 @@ def test_replay_is_deterministic_and_fixed_mode_stays_put(tmp_path, flight, repl
                    center=(10.0, 0.0), progress=False)
     assert fixed.assessment.origin == (6, -4)
     assert again.stats['clouds'] == fixed.stats['clouds'] == 20
+
+
+def test_a_sqlite3_bag_replays_like_the_mcap(tmp_path, replayed, model_file):
+    bag = tmp_path / 'flight_db3'
+    write_flight(bag, storage='sqlite3')  # the same seed: the same messages
+    assert list(bag.glob('*.db3'))
+    res = replay(bag, None, None, model=model_file, config=small_config(),
+                 stream_config=StreamConfig(assessment_period=1.0), progress=False)
+    ref = replayed[0].assessment
+    np.testing.assert_array_equal(res.assessment.p_safe, ref.p_safe)
+    assert res.stats['clouds'] == 20
 
 
 def test_missing_topics_and_bad_bags_are_bag_errors(tmp_path, flight, model_file):
