@@ -22,9 +22,11 @@ def make_model(path, input_size: int = 32, seed: int = 0, **metadata):
 
     torch.manual_seed(seed)
     net = SafetyNet(SafetyNetConfig(spec=SMALL_SPEC, input_size=input_size))
-    # An untrained head sits at P = 0.5 everywhere; spread it so tiles differ measurably.
+    # An untrained head sits at P = 0.5 everywhere (logits within +-0.2); spread it so tiles
+    # differ measurably without saturating.
     with torch.no_grad():
-        net.head.weight.mul_(300.0)
+        net.head.weight.mul_(20.0)
+        net.head.bias.fill_(2.0)
     save_model(path, net, {'voxel_size': 0.05, **metadata})
     return path
 
