@@ -23,6 +23,8 @@ def test_factory_names_and_interface():
     assert not hasattr(methods[0], 'fit')
     assert all(callable(m.fit) for m in methods[1:])
     assert all(m.seed == 3 for m in methods)
+    # evaluate.py reports an ECE only for methods whose scores are P(safe).
+    assert [m.probabilistic for m in methods] == [False, True, True]
 
 
 def test_raw_forest_separates_boxes_from_flat(boxes):

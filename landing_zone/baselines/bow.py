@@ -32,11 +32,13 @@ class BowForest:
 
     Attributes:
         name: the paper's name of the method.
+        probabilistic: whether scores are P(safe) (evaluation reports an ECE only then).
         words: (K, F) float32 codebook in standardised feature units (None before fit).
         forest: the fitted scikit-learn forest (None before fit).
     """
 
     name = 'BoW RF'
+    probabilistic = True  # scores are the forest's P(safe) (vote shares, uncalibrated)
 
     def __init__(self, seed: int = 0, words: int = 512, neighbours: int = 5,
                  codebook_fraction: float = 0.25, max_codebook_voxels: int = 500_000,

@@ -113,9 +113,11 @@ class PlaneResiduals:
 
     Attributes:
         name: the paper's name of the method.
+        probabilistic: whether scores are P(safe) (evaluation reports an ECE only then).
     """
 
     name = 'Plane residuals'
+    probabilistic = False  # a negated length [m], not P(safe): evaluation reports no ECE
 
     def __init__(self, geometry: VolumeGeometry | None = None, clip: float = 0.1,
                  inlier_distance: float | None = None, seed: int = 0) -> None:

@@ -36,10 +36,12 @@ class RawForest:
 
     Attributes:
         name: the paper's name of the method.
+        probabilistic: whether scores are P(safe) (evaluation reports an ECE only then).
         forest: the fitted scikit-learn forest (None before :meth:`fit`).
     """
 
     name = 'Raw RF'
+    probabilistic = True  # scores are the forest's P(safe) (vote shares, uncalibrated)
 
     def __init__(self, seed: int = 0, trees: int = 20) -> None:
         """Set up an unfitted forest of ``trees`` trees seeded with ``seed``."""
