@@ -272,12 +272,13 @@ class DensityMap:
     Memory: one ``uint8`` for the hits and one for the passes of every voxel (2 bytes), a 4-byte
     cold-block index per 4 x 4 x 4 brick (0.06 bytes per voxel), and 128-byte cold blocks that
     hold the high bytes of a brick's counts, allocated only for bricks where some count went
-    past 255. So a map costs 2.06 bytes per voxel (26 MB for the default 400 x 400 x 80) until
-    counts grow large, and at most 4.06 bytes per voxel if every brick overflows.
+    past 255. So a map costs 2.07 bytes per voxel (26.5 MB for the default 400 x 400 x 80)
+    until counts grow large, and at most 4.07 bytes per voxel should every brick overflow.
 
     Saturation: hits and passes are exact up to 65535 each; a count that reaches 65535 stays
-    there (it never wraps). The density of a saturated voxel remains the posterior mean of the
-    saturated counts, which by then is within 1.5e-5 of the exact value per extra count.
+    there (it never wraps) while the other goes on counting, so the density of such a voxel is
+    that of the clamped counts. (At 20k returns per second spread over a 20 m map, a ground
+    voxel needs hours of hover to get there.)
 
     Threads: a batch is walked in ``raytrace.PARTS`` slabs of storage, taken by up to
     ``numba.get_num_threads()`` threads (``NUMBA_NUM_THREADS=1``: in turn on the caller's
@@ -329,7 +330,11 @@ class DensityMap:
         self._cdir = np.full(nvox // _BRICK_VOX, -1, np.int32)
         # the most cold blocks one ray can claim in one part (see raytrace._trace_part)
         self._worst = int(self._dims.sum() // BRICK + 6)
-        self._pool = np.zeros((self._nparts, self._worst, _COLD_BYTES), np.uint8)
+        # a part never needs more cold blocks than it has bricks
+        self._pool_limit = int(np.diff(self._row_start).max() * (self._dims[0] // BRICK)
+                               * (self._dims[2] // BRICK))
+        self._pool = np.zeros((self._nparts, min(self._worst, self._pool_limit), _COLD_BYTES),
+                              np.uint8)
         self._used = np.zeros(self._nparts, np.int64)
         self.parallel = bool(parallel)
         # XY cell (voxels) the batch is counting-sorted by before the walk; 0 keeps input order
@@ -357,7 +362,8 @@ class DensityMap:
     def nbytes(self) -> int:
         """Bytes of count storage (hot arrays, cold-block index and pools, dirty record)."""
         return int(self._hits.nbytes + self._passes.nbytes + self._cdir.nbytes
-                   + self._pool.nbytes + self._used.nbytes + self._dirty.nbytes)
+                   + self._pool.nbytes + self._used.nbytes + self._dirty.nbytes
+                   + self._dirty_parts.nbytes)
 
     @property
     def cold_blocks(self) -> int:
@@ -422,7 +428,7 @@ class DensityMap:
         counters = np.zeros((self._nparts, 2), np.int64)
         while True:
             trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
-                       self._passes, self._cdir, self._pool, self._used, resume,
+                       self._passes, self._cdir, self._pool, self._pool_limit, self._used, resume,
                        self._dirty_parts, self._dirty_lo, self.tile_vox, counters,
                        parallel=self.parallel and nvalid >= _PARALLEL_MIN_RAYS)
             if np.all(resume >= 2 * nvalid):
@@ -437,7 +443,7 @@ class DensityMap:
 
     def _grow_pool(self) -> None:
         cap = self._pool.shape[1]
-        pool = np.zeros((self._nparts, 2 * cap, _COLD_BYTES), np.uint8)
+        pool = np.zeros((self._nparts, min(2 * cap, self._pool_limit), _COLD_BYTES), np.uint8)
         pool[:, :cap] = self._pool
         self._pool = pool
 

@@ -329,7 +329,7 @@ def _carry(hot, cold_at, idx, cdir, pool, used, part):
 
 @nb.njit(cache=True, nogil=True, error_model='numpy')
 def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
-                passes, cdir, pool, used, resume, dirty, dlo, tile_vox, counters):
+                passes, cdir, pool, pool_limit, used, resume, dirty, dlo, tile_vox, counters):
     """Walk the part of every ray inside the storage slab ``part`` owns.
 
     ``tabx[g - wlo[0]]`` (and y, z) is the share of axis index ``g`` in the linear storage
@@ -356,8 +356,8 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
         if bly >= bhy:
             pos = (iv + 1) * nvalid
             continue
-        if used[part] + worst > cap:
-            break  # the caller grows this part's pool and resumes here
+        if used[part] + min(worst, pool_limit - used[part]) > cap:
+            break  # the caller grows the pool (up to pool_limit blocks) and resumes here
         pos += 1
         i = order[jj]
         ox = uo[i, 0]
@@ -526,7 +526,7 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
 
 
 def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes, cdir, pool,
-               used, resume, dirty, dirty_lo, tile_vox, counters,
+               pool_limit, used, resume, dirty, dirty_lo, tile_vox, counters,
                parallel: bool = True) -> None:
     """Walk the prepared rays into the storage arrays (see :class:`DensityMap`).
 
@@ -538,8 +538,8 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
         resume[:] = 0
         return
     args = (uo, up, order, nvalid, box_lo, box_hi, yint, box_lo, tables[0], tables[1],
-            tables[2], hits, passes, cdir, pool, used, resume, dirty, dirty_lo, tile_vox,
-            counters)
+            tables[2], hits, passes, cdir, pool, pool_limit, used, resume, dirty, dirty_lo,
+            tile_vox, counters)
     run_parts(_trace_part, yint.shape[0], args, parallel)
 
 

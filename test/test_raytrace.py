@@ -314,6 +314,23 @@ def test_cold_blocks_follow_bricks_in_both_parts():
     assert dmap.cold_blocks > 4
 
 
+def test_every_brick_overflowing_fits_the_bounded_pool():
+    cfg = MapConfig(voxel_size=VS, size_xy=8 * VS, size_z=4 * VS, z_below=2 * VS)
+    dmap = DensityMap(cfg)
+    g = np.stack(np.meshgrid(*(np.arange(n) for n in dmap.shape), indexing='ij'), -1)
+    cells = g.reshape(-1, 3) + dmap.lo
+    pts = (cells + 0.5) * VS
+    origins = pts + (0.3 * VS, 0.2 * VS, 0.1 * VS)  # same voxel: one hit, no pass
+    reps = 260
+    stats = dmap.integrate(np.tile(pts, (reps, 1)), np.tile(origins, (reps, 1)))
+    assert stats.integrated == reps * len(pts)
+    h, p = dmap.counts()
+    assert np.all(h == reps) and not p.any()
+    assert dmap.cold_blocks == 4  # every brick of the 8 x 8 x 4 map
+    # 2 hot + 2 cold bytes + 1/16 byte of index per voxel, plus a few bytes of bookkeeping
+    assert dmap.nbytes <= 4.07 * h.size + 200
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(seed=st.integers(0, 2 ** 32 - 1), n=st.integers(1, 300), split=st.integers(0, 300))
 def test_properties_hits_density_and_batching(seed, n, split):
