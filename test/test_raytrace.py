@@ -124,6 +124,35 @@ def ray_sets(rng: np.random.Generator, n: int, lo, hi) -> tuple[np.ndarray, np.n
     return np.concatenate(o), np.concatenate(p)
 
 
+@pytest.mark.parametrize('origin,point,hit,passes', [
+    # through the edge at (1, 1): both axes step up together, no zero-length cell
+    ((0.5, 0.5, 0.5), (2.5, 2.5, 0.5), (2, 2, 0), [(0, 0, 0), (1, 1, 0)]),
+    # the same edge, travelled backwards: both step down together
+    ((2.5, 2.5, 0.5), (0.5, 0.5, 0.5), (0, 0, 0), [(2, 2, 0), (1, 1, 0)]),
+    # x up and y down through the edge at (1, 1): the cell holding the crossing point, (1, 1),
+    # is met (for a single instant) between (0, 1) and (1, 0)
+    ((0.5, 1.5, 0.5), (1.5, 0.5, 0.5), (1, 0, 0), [(0, 1, 0), (1, 1, 0)]),
+    # through the corner (1, 1, 1) on the main diagonal
+    ((0.5, 0.5, 0.5), (1.5, 1.5, 1.5), (1, 1, 1), [(0, 0, 0)]),
+    # a return exactly on a face belongs to the cell above it
+    ((0.5, 0.5, 0.5), (2.0, 0.5, 0.5), (2, 0, 0), [(0, 0, 0), (1, 0, 0)]),
+    ((2.5, 0.5, 0.5), (1.0, 0.5, 0.5), (1, 0, 0), [(2, 0, 0)]),
+    # a ray lying in the face x = 1 runs through the cells above it
+    ((1.0, 0.5, 0.5), (1.0, 2.5, 0.5), (1, 2, 0), [(1, 0, 0), (1, 1, 0)]),
+    # an origin exactly on a face, moving down: its own cell is met at t = 0
+    ((2.0, 0.5, 0.5), (0.5, 0.5, 0.5), (0, 0, 0), [(2, 0, 0), (1, 0, 0)]),
+])
+def test_tie_rule_by_hand(origin, point, hit, passes):
+    """The half-open rule on hand-checked cases (lattice units, voxel size 1/4 m)."""
+    dmap = small_map(8, 8, lo=(0, 0, 0))
+    dmap.integrate(np.array([point]) * VS, np.array(origin) * VS)
+    _, _, hit_cells, pass_cells = kernel_counts(dmap)
+    assert hit_cells == [hit]
+    assert pass_cells == set(passes)
+    want = expected_counts(dmap, np.array(origin) * VS, np.array(point) * VS)
+    assert want == (hit, set(passes))
+
+
 @pytest.mark.parametrize('shape_xy,shape_z,lo', [
     (16, 16, None),  # storage aligned with the window
     (13, 11, (-7, 5, -3)),  # padded ring dimensions, window not brick-aligned
