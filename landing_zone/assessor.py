@@ -421,6 +421,20 @@ class Assessor:
             grid = binary_dilation(grid, np.ones((2 * self._reach + 1,) * 2, bool))
         return np.argwhere(grid).astype(np.int64) + origin
 
+    def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copy of the counts the tiles' inputs read: their bounding box, padding included,
+        clipped to the window (as :func:`landing_zone.tiles.extract_tiles` reads them, but
+        only the copy is made under the map's lock)."""
+        pad = self.config.tiles.padding
+        lo = np.asarray(self.map.lo, np.int64)
+        hi = np.asarray(self.map.hi, np.int64)
+        box_lo = np.concatenate([tiles.min(axis=0) * self.tile_vox - pad, lo[2:]])
+        box_hi = np.concatenate([(tiles.max(axis=0) + 1) * self.tile_vox + pad, hi[2:]])
+        box_lo = np.clip(box_lo, lo, hi)
+        box_hi = np.clip(box_hi, box_lo, hi)
+        hits, passes = self.map.counts(box_lo, box_hi - box_lo)
+        return hits, passes, box_lo
+
     def assess(self) -> Assessment:
         """Judge the tiles whose voxels changed since the last pass; return all tiles' state.
 
@@ -428,14 +442,17 @@ class Assessor:
             An :class:`Assessment` of every tile of the current window.
         """
         from landing_zone.model import predict
-        from landing_zone.tiles import extract_tiles
+        from landing_zone.tiles import tiles_from_counts
 
         with self._assess_lock:
             t0 = time.perf_counter()
             with self._map_lock:
                 todo = self._dirty_tiles()
-                batch = extract_tiles(self.map, self.config.tiles, todo) if len(todo) else None
+                counts = self._read_counts(todo) if len(todo) else None
                 stamp = self._stamp
+            # the tiler's kernel runs on the copied counts, outside the lock
+            batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
+                                      todo) if counts is not None else None
             p = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
