@@ -287,6 +287,99 @@ class SafetyNet(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
+# --- the safetensors format ------------------------------------------------------------------
+# The safetensors package reads and writes checkpoints where it is installed. Training boxes may
+# offer only torch, numpy, numba, scipy and scikit-learn, so the format (an 8-byte little-endian
+# header length, a JSON header naming each tensor's dtype, shape and byte range, then the raw
+# little-endian bytes) is also written and read here; nothing in it is ever executed.
+
+_ST_DTYPES = {'F64': torch.float64, 'F32': torch.float32, 'F16': torch.float16,
+              'BF16': torch.bfloat16, 'I64': torch.int64, 'I32': torch.int32,
+              'I16': torch.int16, 'I8': torch.int8, 'U8': torch.uint8, 'BOOL': torch.bool}
+_ST_NAMES = {v: k for k, v in _ST_DTYPES.items()}
+_ST_MAX_HEADER = 100_000_000
+
+
+def _st_save(tensors: dict[str, torch.Tensor], path: str, metadata: dict[str, str]) -> None:
+    try:
+        from safetensors.torch import save_file
+    except ImportError:
+        save_file = None
+    if save_file is not None:
+        save_file(tensors, path, metadata=metadata)
+        return
+    header: dict[str, Any] = {'__metadata__': metadata}
+    blobs = []
+    offset = 0
+    for name in sorted(tensors):
+        t = tensors[name].detach().cpu().contiguous()
+        raw = t.reshape(-1).view(torch.uint8).numpy().tobytes()
+        header[name] = {'dtype': _ST_NAMES[t.dtype], 'shape': list(t.shape),
+                        'data_offsets': [offset, offset + len(raw)]}
+        blobs.append(raw)
+        offset += len(raw)
+    text = json.dumps(header, separators=(',', ':')).encode()
+    text += b' ' * (-len(text) % 8)  # the tensors start 8-byte aligned
+    with open(path, 'wb') as f:
+        f.write(len(text).to_bytes(8, 'little'))
+        f.write(text)
+        for raw in blobs:
+            f.write(raw)
+
+
+def _st_read(path: str, tensors: bool) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
+    """(metadata, tensors) of a safetensors file; tensors only if asked."""
+    try:
+        from safetensors import safe_open
+        from safetensors.torch import load_file
+    except ImportError:
+        return _st_read_here(path, tensors)
+    with safe_open(path, framework='pt', device='cpu') as f:
+        meta = f.metadata() or {}
+    return meta, (load_file(path, device='cpu') if tensors else {})
+
+
+def _st_read_here(path: str, tensors: bool) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
+    with open(path, 'rb') as f:
+        data = f.read()
+    if len(data) < 8:
+        raise ValueError('file too short for a safetensors header')
+    n = int.from_bytes(data[:8], 'little')
+    if n > min(len(data) - 8, _ST_MAX_HEADER):
+        raise ValueError(f'header length {n} does not fit the file')
+    header = json.loads(data[8:8 + n].decode('utf-8'))
+    if not isinstance(header, dict):
+        raise ValueError('header is not a JSON object')
+    meta = header.pop('__metadata__', None) or {}
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in meta.items()):
+        raise ValueError('metadata must map strings to strings')
+    body = memoryview(data)[8 + n:]
+    spans = []
+    out = {}
+    for name, info in header.items():
+        dtype = _ST_DTYPES.get(info.get('dtype')) if isinstance(info, dict) else None
+        if dtype is None:
+            raise ValueError(f'tensor {name!r}: unsupported entry {info!r}')
+        shape = [int(v) for v in info['shape']]
+        begin, end = (int(v) for v in info['data_offsets'])
+        size = math.prod(shape) * torch.empty(0, dtype=dtype).element_size()
+        if not 0 <= begin <= end <= len(body) or end - begin != size:
+            raise ValueError(f'tensor {name!r}: byte range {begin}..{end} does not fit')
+        spans.append((begin, end))
+        if tensors:
+            raw = bytearray(body[begin:end])
+            t = torch.frombuffer(raw, dtype=dtype) if raw else torch.empty(0, dtype=dtype)
+            out[name] = t.reshape(shape)
+    pos = 0
+    for begin, end in sorted(spans):
+        if begin != pos:
+            raise ValueError('tensor byte ranges overlap or leave holes')
+        pos = end
+    if pos != len(body):
+        raise ValueError('trailing bytes after the last tensor')
+    return meta, out
+
+
 # --- checkpoints -------------------------------------------------------------------------------
 
 def _weights_digest(tensors: dict[str, torch.Tensor]) -> str:
@@ -311,8 +404,6 @@ def save_model(path: str | os.PathLike, model: SafetyNet, metadata: dict[str, An
         extra_tensors: more tensors to store under their own names (training state); they must
             not collide with the weights' names.
     """
-    from safetensors.torch import save_file
-
     tensors = {k: v.detach().to('cpu', torch.float32).contiguous()
                for k, v in model.state_dict().items()}
     meta = dict(metadata or {})
@@ -332,7 +423,7 @@ def save_model(path: str | os.PathLike, model: SafetyNet, metadata: dict[str, An
     fd, tmp = tempfile.mkstemp(prefix=dest.name + '.', suffix='.tmp', dir=dest.parent)
     os.close(fd)
     try:
-        save_file(tensors, tmp, metadata={_META_KEY: header})
+        _st_save(tensors, tmp, {_META_KEY: header})
         os.replace(tmp, dest)
     finally:
         if os.path.exists(tmp):
@@ -350,14 +441,11 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     Raises:
         ModelError: the file is missing, not safetensors, or has no landing_zone metadata.
     """
-    from safetensors import safe_open
-
     p = Path(path)
     if not p.is_file():
         raise ModelError(f'model file not found: {p}')
     try:
-        with safe_open(str(p), framework='pt', device='cpu') as f:
-            raw = (f.metadata() or {}).get(_META_KEY)
+        raw = _st_read(str(p), tensors=False)[0].get(_META_KEY)
     except Exception as err:  # safetensors raises its own and OS errors; all mean unreadable
         raise ModelError(f'{p}: not a readable safetensors model ({_one_line(err)})') from err
     if raw is None:
@@ -388,8 +476,6 @@ def load_model(path: str | os.PathLike, device: str | torch.device = 'cpu',
     Raises:
         ModelError: missing or corrupt file, or weights that do not fit the stored spec.
     """
-    from safetensors.torch import load_file
-
     p = Path(path)
     meta = read_metadata(p)
     try:
@@ -398,7 +484,7 @@ def load_model(path: str | os.PathLike, device: str | torch.device = 'cpu',
     except (KeyError, TypeError, ConfigError) as err:
         raise ModelError(f'{p}: bad architecture in metadata ({_one_line(err)})') from err
     try:
-        tensors = load_file(str(p), device='cpu')
+        tensors = _st_read(str(p), tensors=True)[1]
     except Exception as err:  # see read_metadata
         raise ModelError(f'{p}: not a readable safetensors model ({_one_line(err)})') from err
     expected = model.state_dict()
@@ -450,21 +536,24 @@ def _use_all_cores() -> None:
         _threads_set = True
 
 
-def _inference_copy(model: SafetyNet, dtype: torch.dtype) -> nn.Module:
-    """The net in eval mode, channels-last, cast to ``dtype``; cached until weights change."""
+def _inference_copy(model: SafetyNet, dtype: torch.dtype, channels_last: bool) -> nn.Module:
+    """The net in eval mode, cast to ``dtype`` (channels-last if asked); cached until the
+    weights change."""
     versions = tuple(p._version for p in model.parameters())
     device = next(model.parameters()).device
+    key = (versions, dtype, device, channels_last)
     hit = _infer_copies.get(model)
-    if hit is not None and hit[0] == versions and hit[1] == dtype and hit[2] == device:
-        return hit[3]
-    net = copy.deepcopy(model).to(device=device, dtype=dtype,
-                                  memory_format=torch.channels_last_3d).eval()
-    _infer_copies[model] = (versions, dtype, device, net)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    fmt = torch.channels_last_3d if channels_last else torch.contiguous_format
+    net = copy.deepcopy(model).to(device=device, dtype=dtype, memory_format=fmt).eval()
+    _infer_copies[model] = (key, net)
     return net
 
 
 def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
-            precision: str = 'auto', logits: bool = False) -> np.ndarray:
+            precision: str = 'auto', logits: bool = False, channels_last: bool = True
+            ) -> np.ndarray:
     """P(safe) of a batch of volumes (or the raw logits).
 
     Runs in eval mode under ``torch.inference_mode`` with channels-last 3D tensors. With
@@ -477,6 +566,7 @@ def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int
         batch_size: volumes per forward pass.
         precision: 'auto', 'bf16' or 'fp32'.
         logits: return the uncalibrated logits instead of probabilities.
+        channels_last: run in the channels-last 3D layout (faster with oneDNN and cuDNN).
 
     Returns:
         (T,) float32.
@@ -506,12 +596,13 @@ def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int
     else:
         use_bf16 = precision == 'bf16'
     dtype = torch.bfloat16 if use_bf16 else torch.float32
-    net = _inference_copy(model, dtype)
+    net = _inference_copy(model, dtype, channels_last)
+    fmt = torch.channels_last_3d if channels_last else torch.contiguous_format
     out = torch.empty(x.shape[0], dtype=torch.float32)
     with torch.inference_mode():
         for i in range(0, x.shape[0], batch_size):
             xb = x[i:i + batch_size].to(device=device, dtype=dtype)
-            xb = xb.contiguous(memory_format=torch.channels_last_3d)  # (B, 1, D, H, W)
+            xb = xb.contiguous(memory_format=fmt)  # (B, 1, D, H, W)
             lg, _ = net(xb)
             out[i:i + batch_size] = lg.float().cpu()
     if logits:

@@ -189,3 +189,46 @@ def test_predict_rejects_bad_inputs():
     with pytest.raises(ConfigError, match='precision'):
         predict(net, volumes(1), precision='fp8')
     assert predict(net, np.zeros((0, 1, 32, 32, 32), np.float32)).shape == (0,)
+
+
+# --- the format without the safetensors package ------------------------------------------------
+
+def without_safetensors(monkeypatch):
+    import sys
+    for name in ('safetensors', 'safetensors.torch'):
+        monkeypatch.setitem(sys.modules, name, None)  # import now raises ImportError
+
+
+def test_own_safetensors_writer_and_reader_agree_with_the_library(tmp_path, monkeypatch):
+    from safetensors.torch import load_file
+    net = small_net().eval()
+    x = volumes(3)
+    ours = tmp_path / 'ours.safetensors'
+    lib = tmp_path / 'lib.safetensors'
+    save_model(lib, net, {'note': 'library'})
+    with monkeypatch.context() as m:
+        without_safetensors(m)
+        save_model(ours, net, {'note': 'library'})
+        # the library's file, read here
+        loaded, meta = load_model(lib)
+        assert meta['note'] == 'library'
+        np.testing.assert_array_equal(predict(loaded, x, precision='fp32'),
+                                      predict(net, x, precision='fp32'))
+    # our file, read by the library: same tensors, same metadata
+    a, b = load_file(str(ours)), load_file(str(lib))
+    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    assert read_metadata(ours) == read_metadata(lib)
+
+
+def test_own_reader_refuses_damaged_files(tmp_path, monkeypatch):
+    path = tmp_path / 'm.safetensors'
+    save_model(path, small_net())
+    data = path.read_bytes()
+    cases = {'short': data[:5], 'truncated': data[:-8], 'trailing': data + b'\0' * 8,
+             'header': (10 ** 9).to_bytes(8, 'little') + data[8:]}
+    without_safetensors(monkeypatch)
+    for name, blob in cases.items():
+        bad = tmp_path / f'{name}.safetensors'
+        bad.write_bytes(blob)
+        with pytest.raises(ModelError, match='not a readable safetensors model'):
+            load_model(bad)

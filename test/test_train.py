@@ -233,3 +233,26 @@ def test_bad_data_and_settings_are_refused(tmp_path):
         quick_config(epochs=0).validate()
     with pytest.raises(DatasetError, match='no dataset directory'):
         train(tmp_path, tmp_path / 'm.safetensors', quick_config(), progress=False)
+
+
+def test_training_needs_only_torch_numpy_numba_scipy_sklearn(tmp_path):
+    """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    script = f'''
+import sys
+for name in ('typer', 'tqdm', 'safetensors', 'optuna', 'rclpy', 'rosbags', 'matplotlib',
+             'trimesh', 'embreex', 'mcap', 'rich'):
+    sys.modules[name] = None
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from test_train import toy_scenes, quick_config
+from landing_zone.train import train
+from landing_zone.model import load_model
+train(toy_scenes(8, 0), {str(tmp_path / 'm.safetensors')!r}, quick_config(), progress=True)
+print(load_model({str(tmp_path / 'm.safetensors')!r})[0].spec)
+'''
+    r = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == SMALL
