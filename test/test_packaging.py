@@ -91,7 +91,8 @@ def test_pip_wheel_install_puts_scripts_on_path(source, tmp_path):
     work = tmp_path / 'src'
     shutil.copytree(source, work)  # pip builds in place: keep the shared copy clean
     out = subprocess.run([sys.executable, '-m', 'pip', 'install', '-q', '--no-deps',
-                          '--no-build-isolation', '--no-compile', '--prefix', str(prefix),
+                          '--no-build-isolation', '--no-compile', '--ignore-installed',
+                          '--prefix', str(prefix),
                           str(work)], capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr[-2000:]
     for script in ('assessor', 'landing-zone'):
