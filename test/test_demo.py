@@ -1,4 +1,4 @@
-"""The demo: scores against labels, the terminal tile map, and the whole run on the default site."""
+"""The demo: label scores, the terminal tile map, and the whole run on the default site."""
 from __future__ import annotations
 
 import json
