@@ -130,6 +130,15 @@ def test_same_seed_same_bytes_any_worker_count(small, tmp_path):
     again = tmp_path / 'again'
     simulate_dataset('synth2', again, scenes=6, workers=2, seed=5, shard_size=3, progress=False)
     assert digest(again) == digest(root)
+    # A fresh process (the command line's case) forks its workers instead: same bytes.
+    forked = tmp_path / 'forked'
+    code = ('from landing_zone.sim.dataset import simulate_dataset\n'
+            f'simulate_dataset("synth2", r"{forked}", scenes=6, workers=3, seed=5, '
+            'shard_size=3, progress=False)\n')
+    run = subprocess.run([sys.executable, '-c', code], cwd=REPO, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert digest(forked) == digest(root)
     other = tmp_path / 'other'
     simulate_dataset('synth2', other, scenes=3, workers=1, seed=6, shard_size=3, progress=False)
     first = SceneDataset(other, 'all')[0].points

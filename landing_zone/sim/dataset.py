@@ -414,7 +414,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         dataset: ``synth1`` or ``synth2``.
         out: directory (created; a rerun with the same arguments resumes).
         scenes: subsample the sweep evenly to this many scenes (None: the whole sweep).
-        workers: processes (None: one per core; 1: in this process).
+        workers: processes (None: one per core; 1: in this process). Workers are forked;
+            if this process has already cast rays (Embree's threads must not be forked), they
+            are spawned, which needs the calling script's code under
+            ``if __name__ == '__main__':`` as any spawning does.
         seed: the dataset's seed.
         split: ``train``, ``test`` or ``both``: which scenes to generate.
         shard_size: scenes per shard file.
@@ -467,11 +470,16 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
     pool = None
     if workers > 1:
         import multiprocessing
-        # fork where there is one: workers start in milliseconds and scripts need no
-        # `if __name__ == '__main__'` guard. The parent holds no Embree device (it casts no
-        # rays when workers > 1) and starts no thread before this (the progress bar's monitor
-        # thread comes after), so the children inherit nothing that forking would break.
-        method = 'fork' if 'fork' in multiprocessing.get_all_start_methods() else 'spawn'
+        import threading
+
+        from landing_zone.sim.raycast import embree_started
+        # fork where it is safe: workers start in milliseconds and scripts need no
+        # `if __name__ == '__main__'` guard. It is safe while this process runs no other
+        # thread and has not started Embree (whose worker threads a child would inherit
+        # half-alive): true for the command line, whose progress bar starts after the pool.
+        safe = threading.active_count() == 1 and not embree_started()
+        method = ('fork' if safe and 'fork' in multiprocessing.get_all_start_methods()
+                  else 'spawn')
         pool = multiprocessing.get_context(method).Pool(workers)
     bar = _Progress(len(selected), done, progress, f'{dataset} -> {out}')
     try:

@@ -28,7 +28,7 @@ import numpy as np
 from landing_zone.errors import SimulationError
 from landing_zone.sim.mesh import NO_RETURN, Mesh
 
-__all__ = ['Hits', 'RayCaster', 'embree_library_path']
+__all__ = ['Hits', 'RayCaster', 'embree_library_path', 'embree_started']
 
 # Embree 4 constants (rtcore_common.h, rtcore_geometry.h, rtcore_scene.h).
 _GEOMETRY_TYPE_TRIANGLE = 0
@@ -85,6 +85,11 @@ def embree_library_path() -> str | None:
     return None
 
 
+def embree_started() -> bool:
+    """Whether this process has started Embree (a forked child would inherit its threads)."""
+    return _Embree.has_devices()
+
+
 class _Embree:
     """The Embree 4 C API through ctypes, and one device per thread count."""
 
@@ -127,6 +132,11 @@ class _Embree:
                     cls._instance = None
                 cls._failed = cls._instance is None
             return cls._instance
+
+    @classmethod
+    def has_devices(cls) -> bool:
+        """Whether this process has created an Embree device (and with it Embree's threads)."""
+        return cls._instance is not None and bool(cls._instance.devices)
 
     def device(self, threads: int) -> int:
         with self._lock:
