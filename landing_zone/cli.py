@@ -341,11 +341,14 @@ def simulate_flight(
 
 @app.command(help='Side and top view of simulated returns coloured by what they hit (ground, '
                   'grass, obstacle): a scene of a dataset directory or a flight bag (with its '
-                  'obstacles and unsafe tiles from SITE.labels.json).\n\n'
+                  'obstacles and unsafe tiles from SITE.labels.json); or the obstacle '
+                  'library.\n\n'
                   'Examples:\n\n  landing-zone render site.mcap --out site.png\n\n'
-                  '  landing-zone render data/synth2 --index 12 --split test --out scene.png')
+                  '  landing-zone render data/synth2 --index 12 --split test --out scene.png\n\n'
+                  '  landing-zone render library --out obstacles.png')
 def render(
-    source: Annotated[Path, typer.Argument(help='Dataset directory or SITE.mcap.')],
+    source: Annotated[Path, typer.Argument(
+        help='Dataset directory, SITE.mcap or the word library.')],
     out: Annotated[Path, typer.Option(help='PNG to write.')],
     index: Annotated[int, typer.Option(help='Scene of a dataset (within --split).')] = 0,
     split: Annotated[str, typer.Option(help='train, test or all.')] = 'all',

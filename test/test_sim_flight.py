@@ -178,3 +178,5 @@ def test_render_flight_and_scene(flight, tmp_path):
         render(data, tmp_path / 'scene.jpg')
     with pytest.raises(SimulationError, match='neither'):
         render(tmp_path, tmp_path / 'x.png')
+    png = render('library', tmp_path / 'library.png')
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n' and png.stat().st_size > 50_000

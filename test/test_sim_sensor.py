@@ -230,6 +230,13 @@ def test_bad_sensor_parameters_raise(field, value):
         SensorConfig(**{field: value}).validate()
 
 
+def test_hover_scan_needs_the_nodding_mount(rng):
+    world = flat_world(rng)
+    with pytest.raises(SimulationError, match='fov_vertical'):
+        hover_scan(world.caster(1), SensorConfig(fov_vertical=0.0), np.array([-5.0, 0.0, 4.0]),
+                   *AOI, *COLUMN, rng)
+
+
 def test_hidden_area_is_an_error(rng):
     world = flat_world(rng)
     # Looking at the tile from below the ground: nothing in view.

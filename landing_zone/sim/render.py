@@ -19,7 +19,7 @@ import numpy as np
 from landing_zone.errors import BagError, DatasetError, SimulationError
 from landing_zone.sim.mesh import GRASS, GROUND, OBSTACLE
 
-__all__ = ['render', 'render_points', 'CLASS_COLOURS']
+__all__ = ['render', 'render_points', 'render_library', 'CLASS_COLOURS']
 
 CLASS_COLOURS = {GROUND: '#8c6d46', GRASS: '#3f9b3a', OBSTACLE: '#d62728'}
 _NAMES = {GROUND: 'ground', GRASS: 'grass', OBSTACLE: 'obstacle'}
@@ -112,6 +112,41 @@ def render_points(points: np.ndarray, labels: np.ndarray | None, out: str | os.P
     return out
 
 
+def render_library(out: str | os.PathLike) -> Path:
+    """Every obstacle model of the library, shaded, with its name, group and size."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from landing_zone.sim.obstacles import library
+    lib = list(library().values())
+    cols = 6
+    rows = -(-len(lib) // cols)
+    fig = _figure(2.6 * cols, 2.7 * rows)
+    light = np.array([0.4, -0.5, 0.77])
+    for k, m in enumerate(lib):
+        ax = fig.add_subplot(rows, cols, k + 1, projection='3d')
+        tri = m.vertices[m.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        shade = 0.35 + 0.65 * np.clip(n @ light, 0.0, 1.0)
+        base = np.array([0.62, 0.58, 0.52]) if m.kind != 'tire' else np.array([0.3, 0.3, 0.32])
+        ax.add_collection3d(Poly3DCollection(tri, facecolors=shade[:, None] * base,
+                                             edgecolors='none'))
+        r = 0.26
+        ax.set_xlim(-r, r)
+        ax.set_ylim(-r, r)
+        ax.set_zlim(0.0, 2 * r)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=22, azim=-60)
+        ax.set_axis_off()
+        dx, dy, dz = m.size
+        ax.set_title(f'{m.name} ({m.group})\n{100 * dx:.0f} x {100 * dy:.0f} x {100 * dz:.0f} cm',
+                     fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out)
+    return out
+
+
 def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
     from landing_zone.sim.dataset import SceneDataset
     ds = SceneDataset(root, split)
@@ -184,7 +219,8 @@ def _render_flight(bag: Path, out: Path) -> Path:
 
 def render(source: str | os.PathLike, out: str | os.PathLike, index: int = 0,
            split: str = 'all') -> Path:
-    """Render a dataset scene (``source`` a dataset directory) or a flight (a ``.mcap`` bag).
+    """Render a dataset scene (``source`` a dataset directory), a flight (a ``.mcap`` bag) or
+    the obstacle library (``source`` the word ``library``).
 
     Raises:
         SimulationError: ``source`` is neither.
@@ -193,6 +229,8 @@ def render(source: str | os.PathLike, out: str | os.PathLike, index: int = 0,
     source, out = Path(source), Path(out)
     if out.suffix.lower() != '.png':
         raise SimulationError(f'render writes a .png file, got {out}')
+    if str(source) == 'library' and not source.exists():
+        return render_library(out)
     if source.is_dir() and (source / 'meta.json').exists():
         return _render_scene(source, out, index, split)
     if source.suffix == '.mcap' and source.exists():

@@ -370,6 +370,9 @@ def estimate_nod_rate(sensor: SensorConfig, position: np.ndarray, aoi_lo: np.nda
     Raises:
         SimulationError: the area of interest cannot be seen from ``position``.
     """
+    if sensor.fov_vertical <= 0:
+        raise SimulationError('a hover scan needs the nodding mount: sensor fov_vertical must '
+                              'be positive')
     if sensor.nod_rate is not None:
         return float(sensor.nod_rate)
     position = np.asarray(position, dtype=float)
@@ -437,7 +440,7 @@ def hover_scan(caster: RayCaster, sensor: SensorConfig, position: np.ndarray,
     walk = BrownianWalk(sensor.wander_sigma, rng, wander_bound)
     area = float(np.prod(aoi_hi - aoi_lo))
     goal = int(math.ceil(sensor.target_density * area))
-    t_sweep = geom.span / omega if geom.span > 0 else sensor.line_period * 1000
+    t_sweep = geom.span / omega
     # Within one sweep the origin wanders by less than this (5 sigma) plus a millimetre.
     sweep_margin = 5.0 * sensor.wander_sigma * math.sqrt(t_sweep) + 1e-3
     parts: list[Returns] = []
