@@ -166,6 +166,14 @@ def test_interrupted_run_resumes(small, tmp_path):
                          progress=False)
 
 
+def test_delta_coding_is_exact(rng):
+    mm = rng.integers(-32768, 32768, (5000, 3)).astype(np.int16)
+    mm[:3] = [[32767, -32768, 0], [-32768, 32767, 1], [32767, 32767, -1]]  # worst jumps
+    enc = ds_mod._delta_encode(mm)
+    assert enc.dtype == np.int16 and enc.shape == (3, 5000)
+    np.testing.assert_array_equal(ds_mod._delta_decode(enc), mm)
+
+
 def test_incomplete_or_missing_dataset_is_an_error(tmp_path):
     with pytest.raises(DatasetError, match='no meta.json'):
         SceneDataset(tmp_path)

@@ -38,7 +38,11 @@ S scenes of the shard and their N returns in total:
 ``label``           uint8 (S,)    1 safe, 0 unsafe
 ``split``           uint8 (S,)    0 train, 1 test
 ``point_offsets``   int64 (S+1,)  returns of scene s are ``point_offsets[s]:[s+1]``
-``points_mm``       int16 (N, 3)  return positions in millimetres relative to the tile centre
+``points_delta``    int16 (3, N)  return positions in millimetres relative to the tile centre,
+                                  per coordinate the difference to the scene's previous return
+                                  (modulo 2^16; the first from 0): consecutive returns are
+                                  neighbours along a scan line, so the differences are small
+                                  and compress to two thirds of the positions' size
 ``hit_class``       uint8 (N,)    what each return hit: 0 ground, 1 grass, 2 obstacle
 ``origin_index``    uint16 (N,)   row of the scene's origin table
 ``origin_offsets``  int64 (S+1,)  origin table of scene s is ``origins[origin_offsets[s]:...]``
@@ -280,6 +284,17 @@ def _write_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
     os.replace(tmp, path)
 
 
+def _delta_encode(mm: np.ndarray) -> np.ndarray:
+    """(N, 3) int16 -> (3, N) int16 differences to the previous row (wrapping)."""
+    d = np.diff(mm.astype(np.int32), axis=0, prepend=np.zeros((1, 3), np.int32))
+    return np.ascontiguousarray(d.T).astype(np.int16)  # wraps modulo 2^16, undone exactly
+
+
+def _delta_decode(delta: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`_delta_encode`: the int16 running sum wraps back exactly."""
+    return np.cumsum(delta, axis=1, dtype=np.int16).T
+
+
 def _shard_arrays(records: list[dict[str, Any]]) -> dict[str, np.ndarray]:
     def offsets(key: str) -> np.ndarray:
         return np.concatenate([[0], np.cumsum([len(r[key]) for r in records])]).astype(np.int64)
@@ -290,7 +305,7 @@ def _shard_arrays(records: list[dict[str, Any]]) -> dict[str, np.ndarray]:
         'label': np.array([r['label'] for r in records], dtype=np.uint8),
         'split': np.array([r['split'] == 'test' for r in records], dtype=np.uint8),
         'point_offsets': offsets('points_mm'),
-        'points_mm': np.concatenate([r['points_mm'] for r in records]),
+        'points_delta': np.concatenate([_delta_encode(r['points_mm']) for r in records], axis=1),
         'hit_class': np.concatenate([r['hit_class'] for r in records]),
         'origin_index': np.concatenate([r['origin_index'] for r in records]),
         'origin_offsets': offsets('origins'),
@@ -578,7 +593,8 @@ class SceneDataset:
         z = self._shard(k)
         p0, p1 = z['point_offsets'][j], z['point_offsets'][j + 1]
         o0, o1 = z['origin_offsets'][j], z['origin_offsets'][j + 1]
-        points = z['points_mm'][p0:p1].astype(np.float32) * np.float32(0.001)
+        points = _delta_decode(z['points_delta'][:, p0:p1]).astype(np.float32) * np.float32(
+            0.001)
         origins = z['origins'][o0:o1][z['origin_index'][p0:p1]]
         return Scene(points, origins, int(z['label'][j]), dict(z['params'][j]),
                      z['hit_class'][p0:p1].copy())
