@@ -116,7 +116,9 @@ def test_dataset_files_and_loader(small):
                 ob = p['obstacle']
                 model = get_model(ob['model'])
                 assert model.group in (split, 'both')
-                assert abs(ob['x']) + model.radius <= 0.5 and abs(ob['y']) + model.radius <= 0.5
+                # Inside the tile, or straddling its edge with at least half its radius in.
+                assert max(abs(ob['x']), abs(ob['y'])) <= 0.5 + 0.5 * model.radius
+                assert np.count_nonzero((scene.hit_class == 2) & tile) > 0
                 assert np.count_nonzero(scene.hit_class == 2) > 10
             else:
                 assert not np.any(scene.hit_class == 2)

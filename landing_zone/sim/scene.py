@@ -211,8 +211,15 @@ def simulate_patch(config: PatchConfig, rng: np.random.Generator, threads: int =
     obstacle = None
     if config.obstacle is not None:
         model = get_model(config.obstacle)
-        # Fully inside the tile, for any yaw: the centre keeps the model's radius from the edge.
-        free = 0.5 * config.tile_size - model.radius
+        # Half the unsafe patches hold the obstacle fully inside the tile (for any yaw the
+        # centre keeps the model's radius from the edge); the other half let it straddle the
+        # tile's edge with at least half its radius inside, as obstacles on a real site do
+        # (a tile is unsafe when any obstacle's footprint overlaps it), so the net learns to
+        # flag a rock that only reaches into the tile from its neighbour.
+        if rng.uniform() < 0.5:
+            free = 0.5 * config.tile_size - model.radius
+        else:
+            free = 0.5 * config.tile_size + 0.5 * model.radius
         x, y = rng.uniform(-free, free, 2)
         obstacle = place(model, float(x), float(y), float(rng.uniform(0.0, 2.0 * np.pi)),
                          terrain)
