@@ -612,20 +612,34 @@ class DensityMap:
         # threads only pay for themselves on large reads (the tiler's full-map reads)
         return 8 if size >= 1 << 20 else 1
 
-    def counts(self, lo: Sequence[int] | None = None,
-               shape: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def counts(self, lo: Sequence[int] | None = None, shape: Sequence[int] | None = None,
+               out: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
         """Hit and pass counts of a box of the global lattice, in world (x, y, z) order.
 
         Args:
             lo: global index of the box's lower corner; default the window's.
             shape: voxels of the box per axis; default the window's shape.
+            out: two C-contiguous uint32 arrays of ``shape`` to fill instead of new ones;
+                reusing them saves the page faults of 100 MB of fresh memory per full read.
 
         Returns:
             ``(hits, passes)``, uint32 arrays of ``shape``; voxels outside the window read 0.
         """
         q_lo, q_n = self._query(lo, shape)
-        out_h = np.zeros(tuple(q_n), np.uint32)
-        out_p = np.zeros(tuple(q_n), np.uint32)
+        if out is None:
+            out_h = np.zeros(tuple(q_n), np.uint32)
+            out_p = np.zeros(tuple(q_n), np.uint32)
+        else:
+            out_h, out_p = out
+            for a in (out_h, out_p):
+                if (a.shape != tuple(q_n) or a.dtype != np.uint32
+                        or not a.flags.c_contiguous or not a.flags.writeable):
+                    raise ConfigError(f'out must be two writeable C-contiguous uint32 arrays of '
+                                      f'shape {tuple(int(v) for v in q_n)}, got {a.dtype} '
+                                      f'{a.shape}')
+            out_h.fill(0)
+            out_p.fill(0)
         if out_h.size:
             chunks = self._read_chunks(out_h.size)
             run_parts(_gather_hot, chunks, (chunks, self._hits, self._passes, self._dims,

@@ -143,6 +143,14 @@ def test_sub_window_reads_and_outside_reads_zero():
     np.testing.assert_array_equal(dmap.observed(), (h + p) > 0)
     hf = h.astype(np.float64)
     np.testing.assert_array_equal(d, ((hf + 1) / (hf + p + 2)).astype(np.float32))
+    # into caller-provided arrays (reused: stale values must go)
+    bufs = (np.full(tuple(q_n), 7, np.uint32), np.full(tuple(q_n), 7, np.uint32))
+    got = dmap.counts(q_lo, q_n, out=bufs)
+    assert got[0] is bufs[0] and got[1] is bufs[1]
+    np.testing.assert_array_equal(got[0], hq)
+    np.testing.assert_array_equal(got[1], pq)
+    with pytest.raises(ConfigError, match='out must be'):
+        dmap.counts(q_lo, q_n, out=(np.zeros(3, np.uint32), np.zeros(3, np.uint32)))
     # a box entirely outside, and an empty box
     assert global_counts(dmap, lo + 100, (3, 3, 3))[0].sum() == 0
     assert dmap.density(lo, (0, 4, 4)).shape == (0, 4, 4)
