@@ -182,3 +182,11 @@ def test_cli_trains_and_evaluates_a_simulated_dataset(tmp_path):
     r = cli('train', '--data', str(data), '--arch', 'C5-F8-X', '--out', str(model))
     assert r.returncode == 2 and 'Traceback' not in r.stderr
     assert r.stderr.startswith("landing-zone: error: bad token 3 'X'")
+
+
+def test_temperature_stays_finite_on_perfectly_separated_logits():
+    z = np.array([-6.0, -4.0, -3.0, 2.0, 5.0, 7.0])
+    y = np.array([0, 0, 0, 1, 1, 1])
+    t = fit_temperature(z, y)
+    assert 0.05 < t < 1.0  # sharper, but not driven to the bound
+    assert fit_temperature(z, y, prior_sigma=None) == pytest.approx(0.05, rel=1e-2)
