@@ -256,3 +256,37 @@ print(load_model({str(tmp_path / 'm.safetensors')!r})[0].spec)
                        timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == SMALL
+
+
+# --- architecture search -----------------------------------------------------------------------
+
+def test_spec_from_search_params():
+    from landing_zone.tune import spec_from_params
+    params = {'conv_layers': 2, 'kernel_0': 7, 'filters_0': 32, 'pool_0': 2, 'kernel_1': 5,
+              'filters_1': 64, 'pool_1': 2, 'log2_hidden': 9}
+    assert spec_from_params(params) == 'C7-F32-P2-C5-F64-P2-D512'
+    assert spec_from_params({'conv_layers': 1, 'kernel_0': 3, 'filters_0': 128, 'pool_0': 1,
+                             'log2_hidden': 7}) == 'C3-F128-P1-D128'
+
+
+@pytest.mark.slow
+def test_search_resumes_from_its_storage(tmp_path):
+    from landing_zone.tune import TuneConfig, tune
+    scenes = toy_scenes(8, seed=11)
+    storage = f'sqlite:///{tmp_path / "tune.db"}'
+    # a tiny budget; nets above 300k parameters are pruned unseen, which most draws are
+    cfg = TuneConfig(trials=2, epochs=1, augment_copies=1, max_samples=8, max_params=300_000)
+    rows = tune(scenes, cfg, storage=storage, out_dir=tmp_path / 'm', progress=False)
+    assert len(rows) == 2
+    cfg.trials = 4
+    rows = tune(scenes, cfg, storage=storage, out_dir=tmp_path / 'm', progress=False)
+    assert len(rows) == 4
+    assert sorted(r['number'] for r in rows) == [0, 1, 2, 3]
+    specs = [r['spec'] for r in rows]
+    assert len(set(specs)) == len(specs)  # the resumed search did not redraw the first trials
+    for r in rows:
+        assert r['state'] in ('COMPLETE', 'PRUNED')
+        if r['state'] == 'COMPLETE':
+            assert 0.0 <= r['val_auc'] <= 1.0 and r['params'] <= 300_000
+        else:
+            assert r['note']
