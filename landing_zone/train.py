@@ -357,22 +357,17 @@ def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers:
     return out, labels
 
 
-class _CachedVolumes(Dataset):
-    """Sample key -> a row of the pre-voxelized cache (scene, copy modulo the cached copies)."""
+@dataclass
+class _VoxelCache:
+    """Pre-voxelized augmented copies: row ``scene * copies + c`` holds copy ``c`` of a scene;
+    sample ``(epoch, scene, copy)`` reads copy ``copy mod copies``."""
 
-    def __init__(self, inputs: torch.Tensor, labels: torch.Tensor, slot_of_scene: dict[int, int],
-                 copies: int) -> None:
-        self.inputs = inputs
-        self.labels = labels
-        self.slot_of_scene = slot_of_scene
-        self.copies = copies
-
-    def __len__(self) -> int:
-        return len(self.inputs)
+    inputs: torch.Tensor  # (S * copies, 1, side, side, side) float16
+    labels: torch.Tensor  # (S * copies,) float32
+    copies: int
 
     def rows(self, keys: np.ndarray) -> np.ndarray:
-        slots = np.array([self.slot_of_scene[int(s)] for s in keys[:, 1]], np.int64)
-        return slots * self.copies + keys[:, 2] % self.copies
+        return keys[:, 1] * self.copies + keys[:, 2] % self.copies
 
 
 def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
@@ -617,7 +612,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         ci, cl = voxelize(d.train, mcfg, tcfg, cfg.workers, progress, 'caching voxels',
                           seed=cfg.seed, augment=True, copies=cfg.cache_voxels,
                           dtype=torch.float16)
-        cache = _CachedVolumes(ci, cl, {int(s): int(s) for s in positions}, cfg.cache_voxels)
+        cache = _VoxelCache(ci, cl, cfg.cache_voxels)
         load_seconds += time.perf_counter() - t0
     loader = None if cache is not None else make_loader(
         vol_ds, sampler, cfg.batch_size, cfg.workers, pin_memory=device.type == 'cuda')
