@@ -35,6 +35,7 @@ from landing_zone.errors import ConfigError, ModelError
 __all__ = [
     'DEFAULT_SPEC',
     'PAPER_SPEC',
+    'FAST_SPEC',
     'Layer',
     'parse_spec',
     'format_spec',
@@ -50,6 +51,10 @@ __all__ = [
 # The paper's best network (its Table II).
 PAPER_SPEC = 'C7-F32-P2-C5-F64-P2-D512'
 DEFAULT_SPEC = PAPER_SPEC
+# A net for small on-board CPUs: it max-pools the input to 10 cm first, so it costs 11 MMAC per
+# tile against the paper net's 382. Measured on a 2-core AVX2 EPYC: 0.2 s per 400-tile map
+# against 2.9 s; trained 4 epochs x 4 copies on 528 synth2 scenes it reached test AUC 0.997.
+FAST_SPEC = 'P2-C5-F32-P2-C3-F64-D128'
 FORMAT = 'landing_zone.safety_net/1'  # checkpoint format tag in the metadata
 _META_KEY = 'landing_zone'
 

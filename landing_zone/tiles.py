@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import threading
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -276,7 +277,9 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     """Tiles of a density map (see :func:`tiles_from_counts`).
 
     Only the counts of the bounding box of the requested tiles (padding included, clipped to
-    the map's window) are read, so re-assessing a few dirty tiles reads little.
+    the map's window) are read, so re-assessing a few dirty tiles reads little. The count
+    buffers are kept per map between calls (not thread-safe for one map: call it from one
+    thread per map, as the assessor does).
 
     Args:
         dmap: the map.
@@ -295,8 +298,18 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     box_hi = np.concatenate([(idx.max(axis=0) + 1) * tv + cfg.padding, hi[2:]])
     box_lo = np.clip(box_lo, lo, hi)
     box_hi = np.clip(box_hi, box_lo, hi)
-    h, p = dmap.counts(box_lo, box_hi - box_lo)
+    shape = tuple(int(v) for v in box_hi - box_lo)
+    bufs = _count_buffers.get(dmap)
+    if bufs is None or bufs[0].shape != shape:
+        bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
+        _count_buffers[dmap] = bufs
+    h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
     return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx)
+
+
+# The count arrays of the last read of each map, reused while the box keeps its shape: a full
+# map is 2 x 51 MB, and fresh memory costs its page faults on every assessment.
+_count_buffers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 # One small map per thread (DataLoader workers are processes, each with its own), reused across
