@@ -10,7 +10,7 @@ import torch
 from landing_zone.calibration import (binary_nll, expected_calibration_error, fit_temperature,
                                       reliability)
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.evaluate import (class_model, confident_mistakes, evaluate_methods,
+from landing_zone.evaluate import (class_models, confident_mistakes, evaluate_methods,
                                    evaluate_scenes, markdown_table, results_json)
 from landing_zone.model import SafetyNet, SafetyNetConfig, predict
 from test_train import quick_config, toy_scenes
@@ -129,14 +129,13 @@ def test_confident_mistakes_are_the_worst_first():
 def test_class_models_move_the_score_the_right_way():
     torch.manual_seed(0)
     net = SafetyNet(SafetyNetConfig('C5-F8-P2-D32', dropout=0.0)).eval()
-    safe = class_model(net, 'safe', steps=60)
-    unsafe = class_model(net, 'unsafe', steps=60)
+    cm = class_models(net, steps=40)
+    safe, unsafe = cm['safe'], cm['unsafe']
     assert safe.shape == (32, 32, 32) and np.abs(safe).max() <= 1.0
     logit = predict(net, np.stack([safe, np.zeros_like(safe), unsafe])[:, None],
                     precision='fp32', logits=True)
     assert logit[0] > logit[1] > logit[2]
-    with pytest.raises(ConfigError):
-        class_model(net, 'maybe')
+    assert all(p.requires_grad for p in net.parameters())
 
 
 def test_evaluate_writes_the_report(tmp_path):

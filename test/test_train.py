@@ -235,6 +235,7 @@ def test_bad_data_and_settings_are_refused(tmp_path):
         train(tmp_path, tmp_path / 'm.safetensors', quick_config(), progress=False)
 
 
+@pytest.mark.slow
 def test_training_needs_only_torch_numpy_numba_scipy_sklearn(tmp_path):
     """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn)."""
     import subprocess
