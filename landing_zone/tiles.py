@@ -46,6 +46,7 @@ __all__ = [
     'TileBatch',
     'tile_voxels',
     'tiles_in_box',
+    'widen_tiles',
     'tiles_from_counts',
     'extract_tiles',
     'scene_to_input',
@@ -121,6 +122,22 @@ def tiles_in_box(lo: Sequence[int], shape: Sequence[int], tile_vox: int) -> np.n
     ky = np.arange(k0[1], max(k1[1], k0[1]), dtype=np.int64)
     gx, gy = np.meshgrid(kx, ky, indexing='ij')
     return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
+    """The tiles and their neighbours up to ``rings`` tiles away (sorted, unique).
+
+    A tile's input reaches ``padding`` voxels into its neighbours, so when the voxels of some
+    tiles change (the map's dirty tiles), the inputs of their neighbours change too.
+
+    Args:
+        tiles: (T, 2) integer tile indices.
+        rings: how many tiles out to add (1 covers any padding up to a whole tile).
+    """
+    idx = _as_tiles(tiles)
+    r = np.arange(-rings, rings + 1)
+    ring = np.stack(np.meshgrid(r, r, indexing='ij'), axis=-1).reshape(-1, 2)
+    return np.unique((idx[:, None, :] + ring[None]).reshape(-1, 2), axis=0)
 
 
 # --- the compiled kernel -----------------------------------------------------------------------

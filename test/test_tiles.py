@@ -7,7 +7,7 @@ import pytest
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
 from landing_zone.tiles import (extract_tiles, scene_to_input, tile_voxels, tiles_from_counts,
-                                tiles_in_box)
+                                tiles_in_box, widen_tiles)
 
 VS = 0.05
 TV = 20
@@ -50,6 +50,14 @@ def test_tile_centres_sit_at_half_metres():
     b = tiles_from_counts(h, p, (-20, -20, 0), VS)
     assert b.index.tolist() == [[-1, -1], [-1, 0], [0, -1], [0, 0]]
     np.testing.assert_allclose(b.centers, [[-0.5, -0.5], [-0.5, 0.5], [0.5, -0.5], [0.5, 0.5]])
+
+
+def test_widen_tiles_adds_the_neighbour_rings():
+    w = widen_tiles(np.array([[0, 0], [1, 0]]))
+    assert len(w) == 12 and w.tolist() == sorted(w.tolist())
+    assert [-1, -1] in w.tolist() and [2, 1] in w.tolist() and [3, 0] not in w.tolist()
+    assert len(widen_tiles(np.array([[5, 5]]), rings=2)) == 25
+    assert len(widen_tiles(np.zeros((0, 2), int))) == 0
 
 
 def test_tile_size_must_be_whole_voxels():

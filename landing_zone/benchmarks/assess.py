@@ -29,7 +29,7 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.density_map import DensityMap
 from landing_zone.model import (DEFAULT_SPEC, FAST_SPEC, SafetyNet, SafetyNetConfig,
                                 bf16_supported, load_model, predict)
-from landing_zone.tiles import extract_tiles, scene_to_input
+from landing_zone.tiles import extract_tiles, scene_to_input, widen_tiles
 
 from landing_zone.benchmarks.integrate import SENSOR, make_batches
 
@@ -144,8 +144,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     dmap.integrate(strip, SENSOR)
     dirty = dmap.pop_dirty()
     # inputs reach one tile into the neighbours (padding), so their inputs changed too
-    ring = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)])
-    wide = np.unique((dirty[:, None, :] + ring[None]).reshape(-1, 2), axis=0)
+    wide = widen_tiles(dirty)
     known = {tuple(k) for k in batch.index.tolist()}
     wide = np.array([k for k in wide.tolist() if tuple(k) in known], np.int64).reshape(-1, 2)
     results['dirty'] = {'returns': int(len(strip)), 'dirty_tiles': int(len(dirty)),
