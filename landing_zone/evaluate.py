@@ -185,10 +185,13 @@ def class_models(model: SafetyNet, steps: int = 150, lr: float = 0.05, l2: float
                  seed: int = 0) -> dict[str, np.ndarray]:
     """Inputs that maximise each class score under an L2 penalty (Simonyan et al., 2014).
 
-    Gradient ascent (Adam) on ``s(x) - l2 * ||x||^2`` from small noise, with ``s`` the logit of
-    P(safe) for 'safe' and its negative for 'unsafe', the input kept in [-1, 1] (the range the
-    network ever sees). Both are optimised as one batch of two: in eval mode the samples do
-    not interact, and one pass over two volumes costs about what one over a single volume does.
+    Gradient ascent (Adam) on ``s(x) - l2 * ||x||^2``, with ``s`` the logit of P(safe) for
+    'safe' and its negative for 'unsafe', the input kept in [-1, 1] (the range the network ever
+    sees). It starts from bare flat ground (an occupied layer at the cube's middle, free space
+    above, unobserved below) plus a little noise: the all-zero start of the original, here an
+    entirely unobserved cube, leaves a trained net's ReLUs silent and the gradient zero. Both
+    are optimised as one batch of two: in eval mode the samples do not interact, and one pass
+    over two volumes costs about what one over a single volume does.
 
     Returns:
         {'safe': (S, S, S), 'unsafe': (S, S, S)} float32 volumes.
@@ -196,7 +199,10 @@ def class_models(model: SafetyNet, steps: int = 150, lr: float = 0.05, l2: float
     side = model.config.input_size
     net = model.float().eval()
     gen = torch.Generator().manual_seed(seed)
-    x = (0.01 * torch.randn((2, 1, side, side, side), generator=gen)).requires_grad_(True)
+    x = 0.05 * torch.randn((2, 1, side, side, side), generator=gen)  # (2, 1, D, H, W)
+    x[..., side // 2] += 0.7  # the ground layer (tiles put it at the cube's middle)
+    x[..., side // 2 + 1:] -= 0.6  # observed free space above it
+    x = x.clamp(-1.0, 1.0).requires_grad_(True)
     sign = torch.tensor([1.0, -1.0])
     opt = torch.optim.Adam([x], lr=lr)
     flags = [p.requires_grad for p in net.parameters()]
