@@ -51,8 +51,10 @@ def _aligned_zeros(n: int, dtype, align: int = 64) -> np.ndarray:
 # --- compiled storage operations ---------------------------------------------------------------
 
 @nb.njit(cache=True, nogil=True)
-def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
-    """Copy the hot bytes of the requested box (global indices) into logical order."""
+def _window_tables(dims, wlo, wn, qlo, qn):
+    """What every read of a box (global indices) needs: the part of the box inside the window
+    ([r0, r1) in box coordinates), the brick-layout offsets of its y and z positions and the
+    x stride. Called once per read, so passing arrays costs nothing per voxel."""
     r0 = np.empty(3, np.int64)
     r1 = np.empty(3, np.int64)
     for a in range(3):
@@ -68,6 +70,13 @@ def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out
     for k in range(r0[2], r1[2]):
         s = (qlo[2] + k) % dims[2]
         offz[k] = (s >> 2) * 64 + (s & 3)
+    return r0, r1, offy, offz, sx_stride
+
+
+@nb.njit(cache=True, nogil=True)
+def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
+    """Copy the hot bytes of the requested box (global indices) into logical order."""
+    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
     z1 = r1[2]
     span = r1[0] - r0[0]
@@ -120,21 +129,7 @@ def _gather_cold(cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
 @nb.njit(cache=True, nogil=True)
 def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
     """Density straight from the hot bytes (valid while no cold block exists)."""
-    r0 = np.empty(3, np.int64)
-    r1 = np.empty(3, np.int64)
-    for a in range(3):
-        r0[a] = min(max(wlo[a] - qlo[a], 0), qn[a])
-        r1[a] = max(min(wlo[a] + wn[a] - qlo[a], qn[a]), r0[a])
-    sy_stride = (dims[2] // BRICK) * 64
-    sx_stride = (dims[1] // BRICK) * sy_stride
-    offy = np.empty(qn[1], np.int64)
-    offz = np.empty(qn[2], np.int64)
-    for j in range(r0[1], r1[1]):
-        s = (qlo[1] + j) % dims[1]
-        offy[j] = (s >> 2) * sy_stride + (s & 3) * 4
-    for k in range(r0[2], r1[2]):
-        s = (qlo[2] + k) % dims[2]
-        offz[k] = (s >> 2) * 64 + (s & 3)
+    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
     z1 = r1[2]
     span = r1[0] - r0[0]
@@ -152,21 +147,7 @@ def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
 @nb.njit(cache=True, nogil=True)
 def _observed_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
     """Observed flags straight from the hot bytes (valid while no cold block exists)."""
-    r0 = np.empty(3, np.int64)
-    r1 = np.empty(3, np.int64)
-    for a in range(3):
-        r0[a] = min(max(wlo[a] - qlo[a], 0), qn[a])
-        r1[a] = max(min(wlo[a] + wn[a] - qlo[a], qn[a]), r0[a])
-    sy_stride = (dims[2] // BRICK) * 64
-    sx_stride = (dims[1] // BRICK) * sy_stride
-    offy = np.empty(qn[1], np.int64)
-    offz = np.empty(qn[2], np.int64)
-    for j in range(r0[1], r1[1]):
-        s = (qlo[1] + j) % dims[1]
-        offy[j] = (s >> 2) * sy_stride + (s & 3) * 4
-    for k in range(r0[2], r1[2]):
-        s = (qlo[2] + k) % dims[2]
-        offz[k] = (s >> 2) * 64 + (s & 3)
+    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
     z1 = r1[2]
     span = r1[0] - r0[0]
