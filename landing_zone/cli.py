@@ -55,8 +55,8 @@ def _root() -> None:
                   '  landing-zone bench integrate --batches 50')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
-        help='Benchmarks to run (integrate, simulate, assess, replay, insert); default all.')]
-        = None,
+        help='Benchmarks to run (integrate, simulate, assess, replay, insert); '
+             'default all.')] = None,
     batches: Annotated[int, typer.Option(help='Batches of returns per measurement.')] = 30,
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,
 ) -> None:
