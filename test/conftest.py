@@ -16,3 +16,10 @@ def pytest_configure(config):
 def rng():
     import numpy as np
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope='session')
+def model_file(tmp_path_factory):
+    """One model file of the right architecture (seeded, untrained) for the pipeline tests."""
+    from test_assessor import make_model
+    return make_model(tmp_path_factory.mktemp('model') / 'small.safetensors')

@@ -31,11 +31,6 @@ def make_model(path, input_size: int = 32, seed: int = 0, **metadata):
     return path
 
 
-@pytest.fixture(scope='module')
-def model_file(tmp_path_factory):
-    return make_model(tmp_path_factory.mktemp('model') / 'small.safetensors')
-
-
 def small_config(**tiles) -> AssessorConfig:
     """An 8 x 8 x 4 m map (64 tiles) with judging thresholds a few clouds can meet."""
     cfg = AssessorConfig()

@@ -19,7 +19,6 @@ pytest.importorskip('rclpy')
 from landing_zone.replay import replay  # noqa: E402
 from msg_adapters import stamp_to_ns  # noqa: E402
 from msg_adapters.pointcloud import cloud_to_structured  # noqa: E402
-from test_assessor import make_model  # noqa: E402
 
 pytestmark = pytest.mark.ros
 
@@ -29,11 +28,6 @@ ENV = dict(os.environ, ROS_DOMAIN_ID=DOMAIN, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCA
 # the defaults, but a history that holds every cloud of the short burst the test plays
 NODE_ARGS = ['-p', 'idle_flush:=0.5', '-p', 'qos_depth:=200', '-r', 'points:=/lidar/points',
              '-r', 'sensor_pose:=/lidar/pose']
-
-
-@pytest.fixture(scope='module')
-def model_file(tmp_path_factory):
-    return make_model(tmp_path_factory.mktemp('model') / 'small.safetensors')
 
 
 @pytest.fixture(scope='module')

@@ -17,7 +17,7 @@ from msg_adapters import MessageTypes, make_header, stamp_to_ns
 from msg_adapters.grid import grid_values
 from msg_adapters.pointcloud import cloud_to_structured, make_cloud, points_to_structured
 from msg_adapters.pose import make_pose_stamped
-from test_assessor import make_model, scene_cloud, small_config
+from test_assessor import scene_cloud, small_config
 
 T0 = 1_700_000_000 * NS
 Q = (0.0, 0.0, 0.0, 1.0)
@@ -54,11 +54,6 @@ def write_flight(path, seed=0, seconds=4.0, cloud_hz=5, pose_hz=20, n=2500,
             msg = make_cloud(points_to_structured(xyz), make_header(stamp, 'map', types), types)
             bag.write(points_topic, stamp + 2000, msg)
     return clouds
-
-
-@pytest.fixture(scope='module')
-def model_file(tmp_path_factory):
-    return make_model(tmp_path_factory.mktemp('model') / 'small.safetensors')
 
 
 @pytest.fixture(scope='module')
