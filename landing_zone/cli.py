@@ -186,6 +186,9 @@ def train(
     dropout: Annotated[float, typer.Option(help='Dropout after each layer.')] = 0.5,
     cache_voxels: Annotated[int, typer.Option(
         help='Pre-voxelize this many augmented copies per scene once (0: on the fly).')] = 0,
+    edge_drop: Annotated[float, typer.Option(
+        help='Share of samples whose context is cut off beyond a random line in the padding, '
+             'as at the edge of a scanned area.')] = 0.0,
     checkpoint_minutes: Annotated[float, typer.Option(
         help='Also save the training state this often within an epoch.')] = 10.0,
     precision: Annotated[str, typer.Option(
@@ -202,7 +205,8 @@ def train(
                       augment_copies=augment_copies, max_samples=max_samples,
                       val_fraction=val_fraction, workers=workers, seed=seed,
                       device=device.value, dropout=dropout, cache_voxels=cache_voxels,
-                      checkpoint_minutes=checkpoint_minutes, precision=precision)
+                      edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,
+                      precision=precision)
     s = run_train(data, out, cfg, resume=resume, init=init)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
@@ -247,11 +251,13 @@ class Split(str, Enum):
                   'II on stdout.\n\n'
                   'Examples:\n\n  landing-zone evaluate --data data/synth2 --model '
                   'model.safetensors --out-dir eval\n\n'
-                  '  landing-zone evaluate --data data/synth2 --baselines --json results.json')
+                  '  landing-zone evaluate --data data/synth2 --baselines --json results.json'
+                  '\n\n  landing-zone evaluate --data data/synth2 --model a.safetensors --model '
+                  'b.safetensors --baselines')
 def evaluate(
     data: Annotated[Path, typer.Option(help='Dataset directory.')],
-    model: Annotated[Optional[Path], typer.Option(
-        help='Model file; default the shipped one.')] = None,
+    model: Annotated[Optional[list[Path]], typer.Option(
+        help='Model file; repeat for more CNNs in one table; default the shipped one.')] = None,
     baselines: Annotated[bool, typer.Option(help='Also evaluate the baselines.')] = False,
     json_path: Annotated[Optional[Path], typer.Option(
         '--json', help='Write RESULTS.json here.')] = None,

@@ -31,9 +31,9 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 import torch
@@ -387,7 +387,8 @@ def _even_subset(n: int, k: int) -> np.ndarray:
     return np.floor((np.arange(k) + 0.5) * n / k).astype(np.int64)
 
 
-def evaluate(data: str | os.PathLike, model: str | os.PathLike | None = None,
+def evaluate(data: str | os.PathLike,
+             model: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
              baselines: bool = False, json_path: str | os.PathLike | None = None,
              out_dir: str | os.PathLike | None = None, split: str = 'test', workers: int = 0,
              fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
@@ -396,8 +397,9 @@ def evaluate(data: str | os.PathLike, model: str | os.PathLike | None = None,
 
     Args:
         data: dataset directory (see :mod:`landing_zone.sim.dataset`).
-        model: model file; default the shipped model (unless only baselines are asked for and
-            none is shipped).
+        model: model file, or several (each its own row, e.g. both of the paper's nets, or a
+            model before and after fine-tuning); default the shipped model (unless only
+            baselines are asked for and none is shipped).
         baselines: also evaluate :func:`landing_zone.baselines.make_baselines`, fitted on up to
             ``fit_scenes`` scenes of the train split.
         json_path: write RESULTS.json (CONTRACT.md section 3) here.
@@ -417,9 +419,10 @@ def evaluate(data: str | os.PathLike, model: str | os.PathLike | None = None,
 
     if split not in ('test', 'train'):
         raise ConfigError(f"split must be 'test' or 'train', got {split!r}")
-    if model is None:
+    if model is None or (not isinstance(model, (str, os.PathLike)) and not list(model)):
         from landing_zone.assessor import default_model_path
         from landing_zone.errors import ModelError
+        model = None
         try:
             model = default_model_path()
         except ModelError:
@@ -433,7 +436,8 @@ def evaluate(data: str | os.PathLike, model: str | os.PathLike | None = None,
 
 
 def evaluate_scenes(source: Any, dataset: str, split: str,
-                    model: str | os.PathLike | None = None, baselines: bool = False,
+                    model: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
+                    baselines: bool = False,
                     train_source: Any = None, json_path: str | os.PathLike | None = None,
                     out_dir: str | os.PathLike | None = None, workers: int = 0,
                     fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
@@ -444,7 +448,9 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     Args:
         source: the scenes to evaluate.
         dataset, split: names reported in the table and RESULTS.json.
-        model: model file of the CNN (None: no CNN).
+        model: model file of the CNN, or several (None: no CNN). Models whose tiles or voxel
+            size differ are each given volumes voxelized their way; the baselines see the
+            first model's (or the default) voxelization.
         baselines: add the paper's baselines, fitted on ``train_source``.
         train_source: scenes the fittable methods are fitted on.
         extra_methods: more methods (see :class:`Method`) to evaluate after these.
@@ -452,34 +458,43 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     """
     from landing_zone.train import ScenePack, voxelize
 
-    methods: list[Any] = []
-    cnn = None
-    meta: dict[str, Any] = {}
-    if model is not None:
-        net, meta = load_model(model, 'cpu')
-        cnn = CNNMethod(net, precision=precision)
-        methods.append(cnn)
-    mcfg = MapConfig(voxel_size=float(meta.get('voxel_size', MapConfig().voxel_size)))
-    tcfg = TileConfig(**meta['tiles']) if 'tiles' in meta else TileConfig()
+    paths = [] if model is None else [model] if isinstance(model, (str, os.PathLike)) \
+        else list(model)
+    cnns: list[tuple[CNNMethod, tuple]] = []
+    for path in paths:
+        net, meta = load_model(path, 'cpu')
+        cnns.append((CNNMethod(net, precision=precision), _voxel_key(meta)))
+    _unique_names([c for c, _ in cnns], paths)
+    key0 = cnns[0][1] if cnns else _voxel_key({})
+    mcfg, tcfg = _configs(key0)
     tile_vox = int(round(tcfg.tile_size / mcfg.voxel_size))
+    others: list[Any] = []
     if baselines:
         from landing_zone.baselines import VolumeGeometry, make_baselines
         geometry = VolumeGeometry(voxel_size=mcfg.voxel_size, tile_size=tcfg.tile_size,
                                   occupied_density=tcfg.occupied_density)
-        methods.extend(make_baselines(seed=seed, geometry=geometry))
-    methods.extend(extra_methods or [])
-    if not methods:
+        others.extend(make_baselines(seed=seed, geometry=geometry))
+    others.extend(extra_methods or [])
+    if not cnns and not others:
         raise ConfigError('nothing to evaluate: give --model or --baselines')
 
     pack = ScenePack.from_scenes(source, _even_subset(len(source), max_scenes), progress,
                                  f'loading {split} scenes')
     if workers:
         pack.share_memory()
-    inputs, labels = voxelize(pack, mcfg, tcfg, workers, progress, f'voxelizing {split}')
+    volumes: dict[tuple, Any] = {}
+
+    def volumes_for(key: tuple) -> Any:
+        if key not in volumes:
+            m, t = _configs(key)
+            volumes[key] = voxelize(pack, m, t, workers, progress, f'voxelizing {split}')
+        return volumes[key]
+
+    inputs, labels = volumes_for(key0)
     x = inputs.numpy()
     y = labels.numpy().astype(np.int64)
     train_x = train_y = None
-    if train_source is not None and any(hasattr(m, 'fit') for m in methods):
+    if train_source is not None and any(hasattr(m, 'fit') for m in others):
         tpack = ScenePack.from_scenes(train_source, _even_subset(len(train_source), fit_scenes),
                                       progress, 'loading train scenes')
         if workers:
@@ -487,7 +502,11 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         ti, tl = voxelize(tpack, mcfg, tcfg, workers, progress, 'voxelizing train')
         train_x, train_y = ti.numpy(), tl.numpy().astype(np.int64)
 
-    results = evaluate_methods(methods, x, y, train_x, train_y, progress)
+    results = []
+    for cnn, key in cnns:
+        results += evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
+    results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
+    cnn = cnns[0][0] if cnns else None
     n, n_unsafe = len(y), int((y == 0).sum())
     table = markdown_table(results, dataset, split, n, n_unsafe)
     out = results_json(results, dataset, split, n, n_unsafe)
@@ -506,6 +525,30 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
             _look_inside(cnn.model, results[0].scores, y, x, pack, d, mcfg.voxel_size,
                          tcfg.padding, tile_vox)
     return {**out, 'table': table}
+
+
+def _voxel_key(meta: dict[str, Any]) -> tuple:
+    """What decides a model's input volumes: its voxel size and tile configuration."""
+    vs = float(meta.get('voxel_size', MapConfig().voxel_size))
+    tiles = meta['tiles'] if 'tiles' in meta else asdict(TileConfig())
+    return vs, tuple(sorted(tiles.items()))
+
+
+def _configs(key: tuple) -> tuple[MapConfig, TileConfig]:
+    return MapConfig(voxel_size=key[0]), TileConfig(**dict(key[1]))
+
+
+def _unique_names(cnns: list[CNNMethod], paths: list[Any]) -> None:
+    """Rows of models with the same spec are told apart by their file names."""
+    specs = [c.name for c in cnns]
+    for c, p in zip(cnns, paths):
+        if specs.count(c.name) > 1:
+            c.name = f'{c.name} ({Path(p).stem})'
+    names = [c.name for c in cnns]
+    dup = next((n for n in names if names.count(n) > 1), None)
+    if dup is not None:
+        raise ConfigError(f'two models would share the row {dup!r}: give them different file '
+                          f'names')
 
 
 def _look_inside(model: SafetyNet, p_safe: np.ndarray, y: np.ndarray, x: np.ndarray,

@@ -71,6 +71,9 @@ class TrainConfig:
     dropout: float = 0.5  # after every conv / dense layer
     z_shift: float = 0.3  # augmentation: vertical shift uniform in [-z_shift, z_shift] [m]
     yaw: bool = True  # augmentation: yaw uniform in [0, 2 pi)
+    # augmentation: share of samples whose context is cut off beyond a random line in the
+    # padding (one side, or two: a corner), as at the edge of a scanned area
+    edge_drop: float = 0.0
     checkpoint_minutes: float = 10.0  # training state also saved this often within an epoch
     cache_voxels: int = 0  # >0: pre-voxelize this many augmented copies per scene once
     # 'auto': bf16 autocast on CUDA for batches of 64 or more, else fp32; 'fp32'; 'bf16'
@@ -90,6 +93,8 @@ class TrainConfig:
                 raise ConfigError(f'{name} must be a non-negative number, got {v}')
         if self.lr <= 0:
             raise ConfigError(f'lr must be positive, got {self.lr}')
+        if not 0.0 <= self.edge_drop <= 1.0:
+            raise ConfigError(f'edge_drop must lie in [0, 1], got {self.edge_drop}')
         if not 0.0 <= self.val_fraction < 1.0:
             raise ConfigError(f'val_fraction must lie in [0, 1), got {self.val_fraction}')
         if self.precision not in ('auto', 'fp32', 'bf16'):
@@ -106,7 +111,7 @@ class TrainConfig:
 # the floating-point results).
 _RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment_copies',
                 'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift', 'yaw',
-                'cache_voxels')
+                'cache_voxels', 'edge_drop')
 
 # -----------------------------------------------------------------------------------------------
 # data
@@ -220,11 +225,16 @@ class AugmentedVolumes(Dataset):
 
     With ``augment`` the scene is rotated by a yaw uniform in [0, 2 pi) and shifted by a z
     uniform in [-z_shift, z_shift] drawn from ``SeedSequence([seed, epoch, scene, copy])``
-    before re-voxelization; without it the scene is used as it is.
+    before re-voxelization; without it the scene is used as it is. With ``edge_drop`` > 0 that
+    share of the samples also loses every return beyond a random line in the padding (two lines
+    in a third of them: a corner), so the net sees tiles at the edge of a scanned area, whose
+    context is partly unobserved, as the deployed map shows them; the tile itself and so its
+    label are untouched.
     """
 
     def __init__(self, pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, seed: int,
-                 augment: bool = True, z_shift: float = 0.3, yaw: bool = True) -> None:
+                 augment: bool = True, z_shift: float = 0.3, yaw: bool = True,
+                 edge_drop: float = 0.0) -> None:
         self.pack = pack
         self.map_cfg = map_cfg
         self.tile_cfg = tile_cfg
@@ -232,27 +242,53 @@ class AugmentedVolumes(Dataset):
         self.augment = augment
         self.z_shift = float(z_shift)
         self.yaw = bool(yaw)
+        self.edge_drop = float(edge_drop)
 
     def __len__(self) -> int:
         return len(self.pack)
 
-    def draw(self, epoch: int, scene: int, copy: int) -> tuple[float, float]:
-        """The (yaw, z shift) of one sample."""
+    def draw(self, epoch: int, scene: int, copy: int
+             ) -> tuple[float, float, list[tuple[float, float]]]:
+        """The (yaw, z shift, edge cuts) of one sample; a cut (angle, distance) drops the
+        returns whose xy projection on the direction ``angle`` exceeds ``distance``."""
         if not self.augment:
-            return 0.0, 0.0
+            return 0.0, 0.0, []
         rng = np.random.default_rng(np.random.SeedSequence(
             [self.seed, int(epoch) + 1, int(scene), int(copy)]))  # epoch -1 (cache) -> 0
         yaw = float(rng.uniform(0.0, 2.0 * math.pi)) if self.yaw else 0.0
         dz = float(rng.uniform(-self.z_shift, self.z_shift)) if self.z_shift > 0 else 0.0
-        return yaw, dz
+        cuts: list[tuple[float, float]] = []
+        if self.edge_drop > 0 and rng.uniform() < self.edge_drop:
+            half = self.tile_cfg.tile_size / 2
+            reach = self.tile_cfg.padding * self.map_cfg.voxel_size
+            angle = float(rng.uniform(0.0, 2.0 * math.pi))
+            for k in range(2 if rng.uniform() < 1 / 3 else 1):
+                # a corner: the second line at a right angle to the first
+                cuts.append((angle + k * math.pi / 2, half + float(rng.uniform(0.0, reach))))
+        return yaw, dz, cuts
 
     def __getitem__(self, key: tuple[int, int, int] | int) -> tuple[torch.Tensor, torch.Tensor]:
         epoch, scene, copy = (0, int(key), 0) if isinstance(key, (int, np.integer)) else key
-        yaw, dz = self.draw(epoch, scene, copy)
+        yaw, dz, cuts = self.draw(epoch, scene, copy)
         pts, org = self.pack.scene(scene)
+        if cuts:
+            pts, org = cut_context(pts, org, cuts)
         batch = scene_to_input(pts, org, self.map_cfg, self.tile_cfg, yaw=yaw, z_shift=dz)
         x = torch.from_numpy(batch.inputs[0])  # (1, S, S, S)
         return x, torch.tensor(float(self.pack.labels[scene]))
+
+
+def cut_context(points: np.ndarray, origins: np.ndarray, cuts: list[tuple[float, float]]
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the returns (and their origins, when given per return) beyond any of the lines
+    ``cuts`` = [(angle, distance)] in the patch frame: kept where
+    ``x cos(angle) + y sin(angle) <= distance`` for every cut."""
+    keep = np.ones(len(points), bool)
+    for angle, dist in cuts:
+        keep &= points[:, 0] * math.cos(angle) + points[:, 1] * math.sin(angle) <= dist
+    if np.ndim(origins) == 2 and len(origins) == len(points):
+        origins = origins[keep]
+    return points[keep], origins
 
 
 class EpochSampler(Sampler):
@@ -328,6 +364,7 @@ def make_loader(dataset: Dataset, sampler: Sampler, batch_size: int, workers: in
 def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers: int = 0,
              progress: bool = False, desc: str = 'voxelizing', seed: int = 0,
              augment: bool = False, copies: int = 1, dtype: torch.dtype = torch.float32,
+             z_shift: float = 0.3, yaw: bool = True, edge_drop: float = 0.0,
              ) -> tuple[torch.Tensor, torch.Tensor]:
     """Network inputs of every scene of a pack (``copies`` per scene, in scene order).
 
@@ -338,7 +375,8 @@ def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers:
     Returns:
         inputs (S * copies, 1, side, side, side) of ``dtype``, labels (S * copies,) float32.
     """
-    ds = AugmentedVolumes(pack, map_cfg, tile_cfg, seed, augment=augment)
+    ds = AugmentedVolumes(pack, map_cfg, tile_cfg, seed, augment=augment, z_shift=z_shift,
+                          yaw=yaw, edge_drop=edge_drop)
     keys = [(-1, s, c) for s in range(len(pack)) for c in range(copies)]
     side = tile_voxels(map_cfg.voxel_size, tile_cfg) + 2 * tile_cfg.padding
     out = torch.empty((len(keys), 1, side, side, side), dtype=dtype)
@@ -603,7 +641,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         print(f'train: nothing to resume at {spath}; starting afresh', file=sys.stderr)
 
     # the samples: on the fly, or from a cache of pre-voxelized augmented copies
-    vol_ds = AugmentedVolumes(d.train, mcfg, tcfg, cfg.seed, True, cfg.z_shift, cfg.yaw)
+    vol_ds = AugmentedVolumes(d.train, mcfg, tcfg, cfg.seed, True, cfg.z_shift, cfg.yaw,
+                              cfg.edge_drop)
     positions = np.arange(len(d.train))
     sampler = EpochSampler(positions, cfg.augment_copies, cfg.seed, cfg.max_samples)
     cache = None
@@ -611,7 +650,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         t0 = time.perf_counter()
         ci, cl = voxelize(d.train, mcfg, tcfg, cfg.workers, progress, 'caching voxels',
                           seed=cfg.seed, augment=True, copies=cfg.cache_voxels,
-                          dtype=torch.float16)
+                          dtype=torch.float16, z_shift=cfg.z_shift, yaw=cfg.yaw,
+                          edge_drop=cfg.edge_drop)
         cache = _VoxelCache(ci, cl, cfg.cache_voxels)
         load_seconds += time.perf_counter() - t0
     loader = None if cache is not None else make_loader(
@@ -747,6 +787,7 @@ _HELP = {
     'seed': 'seed of initialisation, split and augmentation', 'device': 'cpu or cuda[:N]',
     'dropout': 'dropout after each layer', 'z_shift': 'largest vertical shift [m]',
     'yaw': 'random yaw (--no-yaw: none)',
+    'edge_drop': 'share of samples with their context cut off beyond a line in the padding',
     'checkpoint_minutes': 'also save the state this often within an epoch',
     'cache_voxels': 'pre-voxelize this many augmented copies per scene (0: on the fly)',
     'precision': 'auto, fp32 or bf16'}

@@ -157,6 +157,34 @@ def test_evaluate_writes_the_report(tmp_path):
         assert (out / name).read_bytes()[:4] == b'\x89PNG', name
 
 
+def test_several_models_share_one_table(tmp_path):
+    """Two files of one spec get a row each (told apart by file name), and a model with other
+    tiles (less padding: a 28^3 input) is given volumes voxelized its own way."""
+    import shutil
+    from dataclasses import asdict
+    from landing_zone.config import TileConfig
+    from landing_zone.model import save_model
+    from landing_zone.train import train
+    a = tmp_path / 'a.safetensors'
+    train(toy_scenes(16, seed=1), a, quick_config(), progress=False)
+    b = tmp_path / 'b.safetensors'
+    shutil.copy(a, b)
+    c = tmp_path / 'c.safetensors'
+    torch.manual_seed(0)
+    save_model(c, SafetyNet(SafetyNetConfig('C3-F4-P2-D8', input_size=28)),
+               {'voxel_size': 0.05, 'tiles': asdict(TileConfig(padding=4))})
+    res = evaluate_scenes(toy_scenes(12, seed=2), 'toy', 'test', [a, b, c],
+                          extra_methods=[Fixed('always safe', np.ones(12))])
+    m = res['methods']
+    assert list(m) == ['CNN C5-F8-P2-D32 (a)', 'CNN C5-F8-P2-D32 (b)', 'CNN C3-F4-P2-D8',
+                       'always safe']
+    assert m['CNN C5-F8-P2-D32 (a)']['auc'] == m['CNN C5-F8-P2-D32 (b)']['auc']
+    assert 0.0 <= m['CNN C3-F4-P2-D8']['auc'] <= 1.0
+    assert '| CNN C3-F4-P2-D8 |' in res['table']
+    with pytest.raises(ConfigError, match='share the row'):
+        evaluate_scenes(toy_scenes(12, seed=2), 'toy', 'test', [a, a])
+
+
 @pytest.mark.slow
 def test_cli_trains_and_evaluates_a_simulated_dataset(tmp_path):
     from landing_zone.sim.dataset import simulate_dataset
@@ -172,6 +200,9 @@ def test_cli_trains_and_evaluates_a_simulated_dataset(tmp_path):
             '--epochs', '1', '--augment-copies', '1', '--val-fraction', '0.2')
     assert r.returncode == 0, r.stderr
     assert 'wrote' in r.stdout and model.exists()
+    r = cli('evaluate', '--data', str(data), '--model', str(model), '--model',
+            str(model), '--json', str(tmp_path / 'r.json'))
+    assert r.returncode == 2 and 'Traceback' not in r.stderr and 'share the row' in r.stderr
     r = cli('evaluate', '--data', str(data), '--model', str(model), '--json',
             str(tmp_path / 'r.json'))
     assert r.returncode == 0, r.stderr

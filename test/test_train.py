@@ -9,8 +9,10 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
 from landing_zone.model import load_model, predict, save_model, SafetyNet, SafetyNetConfig
 from landing_zone.sim.dataset import Scene
+from landing_zone.tiles import scene_to_input
 from landing_zone.train import (AugmentedVolumes, EpochSampler, ScenePack, TrainConfig,
-                                log_path, roc_auc, split_scenes, state_path, train, voxelize)
+                                cut_context, log_path, roc_auc, split_scenes, state_path,
+                                train, voxelize)
 
 SMALL = 'C5-F8-P2-D32'
 
@@ -178,15 +180,41 @@ def test_workers_and_voxel_cache_give_what_the_training_process_would(tmp_path):
 def test_augmentation_is_a_function_of_seed_epoch_scene_and_copy():
     pack = ScenePack.from_scenes(toy_scenes(4, seed=9))
     ds = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
-    draws = {ds.draw(e, s, c) for e in range(2) for s in range(4) for c in range(3)}
+    draws = {ds.draw(e, s, c)[:2] for e in range(2) for s in range(4) for c in range(3)}
     assert len(draws) == 24  # all different
     assert ds.draw(1, 2, 0) == AugmentedVolumes(pack, MapConfig(), TileConfig(), 0).draw(1, 2, 0)
-    yaw, dz = ds.draw(0, 0, 0)
-    assert 0 <= yaw < 2 * np.pi and -0.3 <= dz <= 0.3
+    yaw, dz, cuts = ds.draw(0, 0, 0)
+    assert 0 <= yaw < 2 * np.pi and -0.3 <= dz <= 0.3 and cuts == []
     x, y = ds[(0, 1, 0)]
     assert x.shape == (1, 32, 32, 32) and float(y) == 1.0
     assert AugmentedVolumes(pack, MapConfig(), TileConfig(), 0, augment=False).draw(3, 1, 2) \
-        == (0.0, 0.0)
+        == (0.0, 0.0, [])
+
+
+def test_edge_drop_cuts_only_the_context():
+    pack = ScenePack.from_scenes(toy_scenes(2, seed=9))
+    plain = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
+    ds = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0, edge_drop=1.0)
+    draws = [ds.draw(e, 0, c) for e in range(4) for c in range(10)]
+    # the yaw and shift stream is the one without cuts; every sample is cut, a third twice
+    assert [d[:2] for d in draws] == [plain.draw(e, 0, c)[:2] for e in range(4) for c in range(10)]
+    n_cuts = [len(d[2]) for d in draws]
+    assert set(n_cuts) == {1, 2} and 5 <= n_cuts.count(2) <= 25
+    for _, dist in (c for d in draws for c in d[2]):
+        assert 0.5 <= dist <= 0.5 + 6 * 0.05
+    pts, org = pack.scene(0)
+    kept, korg = cut_context(pts, org, [(0.0, 0.6)])
+    assert len(kept) == len(korg) and np.all(kept[:, 0] <= 0.6)
+    assert np.array_equal(kept, pts[pts[:, 0] <= 0.6])  # nothing else goes
+    # cut at the tile's own edge (+x): the padding beyond it becomes unobserved (input 0, but
+    # for rays passing over it); the tile keeps every hit and loses only passes of rays that
+    # ended beyond the cut, so no voxel of it gets emptier
+    full, cut = scene_to_input(pts, org), scene_to_input(*cut_context(pts, org, [(0.0, 0.5)]))
+    assert cut.ground_z[0] == full.ground_z[0]
+    x_full, x_cut = full.inputs[0, 0], cut.inputs[0, 0]
+    inner, beyond = slice(6, 26), slice(27, 32)
+    assert np.mean(x_cut[beyond, inner] == 0) > np.mean(x_full[beyond, inner] == 0) + 0.3
+    assert np.all(x_cut[inner, inner] >= x_full[inner, inner] - 1e-6)
 
 
 def test_epoch_sampler_orders_and_caps():
