@@ -25,8 +25,7 @@ app = typer.Typer(
          '  landing-zone simulate-flight --out site.mcap --seed 3\n\n'
          '  landing-zone replay site.mcap --out assessed.mcap --report report.json\n\n'
          '  landing-zone simulate --dataset synth2 --out data/synth2 --scenes 2000\n\n'
-         '  landing-zone train --data data/synth2 --arch C7-F32-P2-C5-F64-P2-D512 '
-         '--out model.safetensors\n\n'
+         '  landing-zone train --data data/synth2 --out model.safetensors\n\n'
          '  landing-zone evaluate --data data/synth2 --baselines --json results.json\n\n'
          '  landing-zone bench integrate',
     no_args_is_help=True,
@@ -167,7 +166,9 @@ class Device(str, Enum):
 def train(
     data: Annotated[Path, typer.Option(help='Dataset directory (landing-zone simulate).')],
     out: Annotated[Path, typer.Option(help='Model file to write (.safetensors).')],
-    arch: Annotated[str, typer.Option(help='Network spec.')] = 'C7-F32-P2-C5-F64-P2-D512',
+    arch: Annotated[str, typer.Option(
+        help='Network spec (default: the shipped model\'s; the paper\'s best is '
+             'C7-F32-P2-C5-F64-P2-D512).')] = 'P2-C5-F32-P2-C3-F64-D128',
     epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
     lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
     momentum: Annotated[float, typer.Option(help='SGD momentum.')] = 0.9,
@@ -188,7 +189,7 @@ def train(
         help='Pre-voxelize this many augmented copies per scene once (0: on the fly).')] = 0,
     edge_drop: Annotated[float, typer.Option(
         help='Share of samples whose context is cut off beyond a random line in the padding, '
-             'as at the edge of a scanned area.')] = 0.0,
+             'as at the edge of a scanned area.')] = 0.3,
     checkpoint_minutes: Annotated[float, typer.Option(
         help='Also save the training state this often within an epoch.')] = 10.0,
     precision: Annotated[str, typer.Option(
@@ -315,34 +316,71 @@ _KINDS = 'rock,tire,cinder_block,box'
              help='A flight over a simulated landing site (grass patches, obstacles) as a ROS 2 '
                   'bag: /lidar/points (PointCloud2) and /lidar/pose (PoseStamped) in frame map; '
                   'the ground truth goes to SITE.labels.json beside it.\n\n'
+                  'Other vegetation and scanners than the training sets\' stand in for real '
+                  'flights: --vegetation clumped (tussocks), tall (curving blades up to '
+                  '0.45 m), bushy (shrubs of 0.2-0.4 m, vegetation: safe), mixed; --scan-pattern '
+                  'spinning (16-beam) or rosette (Livox-like). The same seed keeps the ground, '
+                  'obstacles and noise whatever the vegetation.\n\n'
                   'Examples:\n\n  landing-zone simulate-flight --out site.mcap\n\n'
                   '  landing-zone simulate-flight --out big.mcap --size 40 --obstacles 12 '
-                  '--kinds rock,tire --grass-density 1200 --seed 3')
+                  '--kinds rock,tire --grass-density 1200 --seed 3\n\n'
+                  '  landing-zone simulate-flight --out v.mcap --vegetation mixed '
+                  '--scan-pattern spinning --density 2000')
 def simulate_flight(
     out: Annotated[Path, typer.Option(help='SITE.mcap to write.')],
     size: Annotated[float, typer.Option(help='Edge of the square site [m].')] = 20.0,
     obstacles: Annotated[int, typer.Option(help='Number of obstacles.')] = 6,
     kinds: Annotated[str, typer.Option(
         help='Obstacle kinds, comma separated (rock, tire, cinder_block, box).')] = _KINDS,
-    grass_density: Annotated[float, typer.Option(
-        help='Blades per m^2 of a typical patch.')] = 600.0,
-    grass_height: Annotated[float, typer.Option(help='Mean blade height [m].')] = 0.25,
+    vegetation: Annotated[str, typer.Option(
+        help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
+             'mixed.')] = 'default',
+    grass_density: Annotated[Optional[float], typer.Option(
+        help='Blades per m^2 of a typical patch [default: 600].')] = None,
+    grass_height: Annotated[Optional[float], typer.Option(
+        help='Mean blade height [m] [default: the preset\'s, else 0.25].')] = None,
+    clump_size: Annotated[Optional[float], typer.Option(
+        help='Mean blades per tussock (0: independent blades) [default: the preset\'s].')
+    ] = None,
+    clump_radius: Annotated[Optional[float], typer.Option(
+        help='Standard deviation of a blade from its tussock\'s centre [m].')] = None,
+    lean: Annotated[Optional[float], typer.Option(
+        help='Standard deviation of the blades\' lean from the vertical [deg].')] = None,
+    max_grass_height: Annotated[Optional[float], typer.Option(
+        help='No blade tip higher than this above its base [m].')] = None,
+    bushes: Annotated[Optional[float], typer.Option(
+        help='Shrubs per m^2 (0.2-0.4 m high, 0.3-0.6 m across).')] = None,
+    scan_pattern: Annotated[str, typer.Option(
+        help='Scanner: line (the default nodding line scanner), spinning (16 beams), '
+             'rosette.')] = 'line',
     height: Annotated[float, typer.Option(help='Flight height above the ground [m].')] = 8.0,
+    tilt: Annotated[Optional[float], typer.Option(
+        help='Forward tilt of the scan\'s centre from the nadir [deg] [default: 45, rosette '
+             '20].')] = None,
+    line_spacing: Annotated[Optional[float], typer.Option(
+        help='Distance between passes [m] [default: from the scanner\'s swath].')] = None,
+    density: Annotated[Optional[float], typer.Option(
+        help='Target returns per m^2 (sets the speed) [default: 3000].')] = None,
     speed: Annotated[Optional[float], typer.Option(
-        help='Flight speed [m/s]; default: the speed that gives 3000 returns/m^2.')] = None,
+        help='Flight speed [m/s]; default: the speed that gives the target density.')] = None,
     seed: Annotated[int, typer.Option(help='Seed of the site and the flight.')] = 0,
     overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
 ) -> None:
-    from landing_zone.sim.flight import FlightConfig, simulate_flight as run_flight
+    from landing_zone.sim.flight import flight_config, simulate_flight as run_flight
 
-    cfg = FlightConfig(size=size, obstacles=obstacles,
-                       kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()),
-                       grass_density=grass_density, grass_height=grass_height, height=height,
-                       speed=speed, seed=seed)
+    cfg = flight_config(vegetation, scan_pattern, density=density, size=size,
+                        obstacles=obstacles,
+                        kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()),
+                        grass_density=grass_density, grass_height=grass_height,
+                        clump_size=clump_size, clump_radius=clump_radius,
+                        inclination_std=lean, max_height=max_grass_height,
+                        bush_density=bushes, height=height, tilt=tilt,
+                        line_spacing=line_spacing, speed=speed, seed=seed)
     r = run_flight(cfg, out, overwrite=overwrite)
     print(f'wrote {r.bag} ({r.clouds} clouds, {r.points:,} returns, {r.duration:.1f} s of '
           f'flight at {r.speed:.1f} m/s in {r.passes} pass(es), {r.density:.0f} returns/m^2 '
-          f'over the site) and {r.labels} ({r.unsafe_tiles} of {r.tiles} tiles unsafe)')
+          f'over the site; vegetation {vegetation}, scan pattern {scan_pattern}) and '
+          f'{r.labels} ({r.unsafe_tiles} of {r.tiles} tiles unsafe)')
 
 
 @app.command(help='Side and top view of simulated returns coloured by what they hit (ground, '

@@ -12,10 +12,11 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
 - for reference, a training step (forward + backward + SGD, batch 20) and the data pipeline
   (re-voxelizing one 26k-return patch, one process).
 
-The model is the shipped one when there is one; otherwise an untrained net of the default
-architecture, which costs exactly the same (timing only: its outputs mean nothing). The
-cheaper :data:`~landing_zone.model.FAST_SPEC` net is timed beside it. Figures are medians of
-repeats (best in brackets): the cores are shared.
+Two nets are timed: the shipped model (:data:`~landing_zone.model.DEFAULT_SPEC`) and the
+paper's :data:`~landing_zone.model.PAPER_SPEC`, each loaded from ``models/`` where the file is
+there, otherwise an untrained net of that architecture, which costs exactly the same (timing
+only: its outputs mean nothing). Figures are medians of repeats (best in brackets): the cores
+are shared.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ import torch
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.density_map import DensityMap
-from landing_zone.model import (DEFAULT_SPEC, FAST_SPEC, SafetyNet, SafetyNetConfig,
+from landing_zone.model import (DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig,
                                 bf16_supported, load_model, predict)
 from landing_zone.tiles import extract_tiles, scene_to_input, widen_tiles
 
@@ -49,13 +50,15 @@ def _times(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
 
 
 def _model(spec: str) -> tuple[SafetyNet, str]:
-    if spec == DEFAULT_SPEC:
-        try:
-            from landing_zone.assessor import default_model_path
-            net, _ = load_model(default_model_path())
-            return net, f'{net.spec} (shipped model)'
-        except Exception:  # no shipped model yet (or unreadable): time an untrained one
-            pass
+    from landing_zone.assessor import default_model_path
+    try:
+        shipped = default_model_path()
+        path = shipped if spec == DEFAULT_SPEC else shipped.parent / f'paper_{spec}.safetensors'
+        net, _ = load_model(path)
+        if net.spec == spec:
+            return net, f'{net.spec} ({"shipped model" if path == shipped else path.name})'
+    except Exception:  # no such model file (or unreadable): time an untrained one
+        pass
     torch.manual_seed(0)
     return SafetyNet(SafetyNetConfig(spec)).eval(), f'{spec} (untrained: timing only)'
 
@@ -115,7 +118,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
           f'({ext_best * 1e3:.1f}); of which reading the counts {cnt_med * 1e3:.1f} ms')
 
     nets = {}
-    for spec in (DEFAULT_SPEC, FAST_SPEC):
+    for spec in (DEFAULT_SPEC, PAPER_SPEC):
         net, label = _model(spec)
         if device == 'cuda':
             net = net.to('cuda')
@@ -167,10 +170,11 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     # training and data, for reference
     print('\ntraining step, batch 20, forward + backward + SGD, channels-last:')
     results['train_ms_per_sample'] = {}
-    for prec in (['fp32', 'bf16'] if bf16_supported() else ['fp32']):
-        med, best = _train_step_ms(DEFAULT_SPEC, prec)
-        results['train_ms_per_sample'][prec] = med
-        print(f'  {DEFAULT_SPEC} {prec}: {med:.1f} ms per sample ({best:.1f})')
+    for spec in (DEFAULT_SPEC, PAPER_SPEC):
+        for prec in (['fp32', 'bf16'] if bf16_supported() else ['fp32']):
+            med, best = _train_step_ms(spec, prec)
+            results['train_ms_per_sample'][f'{spec} {prec}'] = med
+            print(f'  {spec} {prec}: {med:.1f} ms per sample ({best:.1f})')
     if not bf16_supported():
         print('  bf16 skipped: no native bf16 on this CPU (it would fall back to slow kernels)')
     pts = make_batches(1, seed + 2000, batch=26_000, half=2.5)[0]
