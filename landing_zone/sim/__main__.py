@@ -6,6 +6,8 @@ command behind the project's typer CLI)::
 
     python -m landing_zone.sim simulate --dataset synth2 --out data/synth2 --workers 16
     python -m landing_zone.sim simulate-flight --out site.mcap        (needs rosbags)
+    python -m landing_zone.sim simulate-flight --out v.mcap --vegetation clumped \
+        --scan-pattern spinning
     python -m landing_zone.sim render data/synth2 --out patch.png     (needs matplotlib)
 
 Errors on bad input print one line and exit with status 2.
@@ -36,9 +38,21 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument('--size', type=float, default=20.0)
     f.add_argument('--obstacles', type=int, default=6)
     f.add_argument('--kinds', default='rock,tire,cinder_block,box')
-    f.add_argument('--grass-density', type=float, default=600.0)
-    f.add_argument('--grass-height', type=float, default=0.25)
+    f.add_argument('--vegetation', default='default',
+                   help='default, clumped, tall, bushy or mixed')
+    f.add_argument('--grass-density', type=float, default=None, help='default 600')
+    f.add_argument('--grass-height', type=float, default=None,
+                   help="default: the preset's, else 0.25")
+    f.add_argument('--clump-size', type=float, default=None)
+    f.add_argument('--clump-radius', type=float, default=None)
+    f.add_argument('--lean', type=float, default=None, help='blade lean std [deg]')
+    f.add_argument('--max-grass-height', type=float, default=None)
+    f.add_argument('--bushes', type=float, default=None, help='shrubs per m^2')
+    f.add_argument('--scan-pattern', default='line', help='line, spinning or rosette')
     f.add_argument('--height', type=float, default=8.0)
+    f.add_argument('--tilt', type=float, default=None)
+    f.add_argument('--line-spacing', type=float, default=None)
+    f.add_argument('--density', type=float, default=None, help='target returns per m^2')
     f.add_argument('--speed', type=float, default=None)
     f.add_argument('--seed', type=int, default=0)
     f.add_argument('--overwrite', action='store_true')
@@ -60,12 +74,17 @@ def main(argv: list[str] | None = None) -> int:
                                        progress=not args.quiet)
             print(json.dumps(summary, indent=1))
         elif args.command == 'simulate-flight':
-            from landing_zone.sim.flight import FlightConfig, simulate_flight
-            cfg = FlightConfig(size=args.size, obstacles=args.obstacles,
-                               kinds=tuple(k.strip() for k in args.kinds.split(',') if k),
-                               grass_density=args.grass_density,
-                               grass_height=args.grass_height, height=args.height,
-                               speed=args.speed, seed=args.seed)
+            from landing_zone.sim.flight import flight_config, simulate_flight
+            cfg = flight_config(args.vegetation, args.scan_pattern, density=args.density,
+                                size=args.size, obstacles=args.obstacles,
+                                kinds=tuple(k.strip() for k in args.kinds.split(',') if k),
+                                grass_density=args.grass_density,
+                                grass_height=args.grass_height, clump_size=args.clump_size,
+                                clump_radius=args.clump_radius, inclination_std=args.lean,
+                                max_height=args.max_grass_height, bush_density=args.bushes,
+                                height=args.height, tilt=args.tilt,
+                                line_spacing=args.line_spacing, speed=args.speed,
+                                seed=args.seed)
             print(json.dumps(simulate_flight(cfg, args.out, overwrite=args.overwrite).summary(),
                              indent=1))
         else:

@@ -17,7 +17,18 @@ Outputs (``../shared/CONTRACT.md``):
   the surface hit: 0 ground, 1 grass, 2 obstacle) and ``/lidar/pose`` (geometry_msgs/PoseStamped
   of the sensor, one per cloud at the cloud's stamp, and at the same rate while turning);
 * ``SITE.labels.json``: every 1 m tile of the site on the global lattice (centres at x.5),
-  unsafe when an obstacle's footprint overlaps it, and the obstacles.
+  unsafe when an obstacle's footprint overlaps it, and the obstacles; ``site`` also names the
+  vegetation and the scan pattern (with their parameters) and ``bushes`` lists the shrubs.
+
+Other vegetation and scanners (:func:`flight_config`), to stand in for flights over vegetation
+the model never trained on: ``vegetation`` presets (``clumped`` tussocks, ``tall`` curving
+blades up to 0.45 m, ``bushy`` shrubs, ``mixed``; see :class:`VegetationConfig`) and scan
+patterns (``spinning`` multi-beam, ``rosette``; see :class:`ScanPattern`). With other vegetation
+the same seed still gives the same ground, patches, obstacles and flight noise as the default
+vegetation (its blades and shrubs draw from a randomness of their own), so flights that differ
+only in vegetation compare like with like. For a scan pattern other than the line scanner the
+pass spacing, the run-in and the speed for the target density follow from the pattern's
+footprint on flat ground (sampled over a second of pulses, see :func:`_pattern_footprint`).
 
 rosbags is imported only when the bag is written.
 """
@@ -27,26 +38,59 @@ import json
 import math
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from landing_zone.errors import BagError, SimulationError
-from landing_zone.sim.grass import GrassConfig, grass_mesh
+from landing_zone.sim.grass import (VEGETATION_PRESETS, Bush, GrassConfig, VegetationConfig,
+                                    _poisson_blades, bush_mesh, grass_mesh, place_bushes,
+                                    vegetation_blades)
+from landing_zone.sim.mesh import Mesh
 from landing_zone.sim.obstacles import KINDS, Obstacle, models, place
 from landing_zone.sim.scene import World
-from landing_zone.sim.sensor import BrownianWalk, Returns, SensorConfig, path_scan
+from landing_zone.sim.sensor import (SCAN_PATTERNS, BrownianWalk, Returns, ScanPattern,
+                                     SensorConfig, mount_frame, path_scan)
 from landing_zone.sim.terrain import PerlinNoise, Terrain, TerrainConfig
 
 __all__ = ['FlightConfig', 'Site', 'FlightResult', 'build_site', 'simulate_flight',
-           'tile_labels', 'polygon_overlaps_square', 'START_TIME_NS']
+           'tile_labels', 'polygon_overlaps_square', 'START_TIME_NS', 'flight_config',
+           'VEGETATION', 'SCAN']
 
 START_TIME_NS = 1_735_689_600 * 1_000_000_000  # 2025-01-01T00:00:00Z: stamps of every flight
 _MIN_SEPARATION = 1.5  # [m] between obstacle centres
 _SWATH_ANGLE = 40.0  # [deg] scan angle out to which a pass counts as covering the ground
 _TURN_POSE_RATE = 50.0  # [Hz] poses while turning between passes
+
+# Vegetation presets: fields of FlightConfig (grass_density, grass_height) or VegetationConfig.
+VEGETATION: dict[str, dict[str, Any]] = {
+    'default': {},
+    # Tussocks of 100 blades (sigma 6 cm, about 25 cm across) splaying out, bare ground between.
+    'clumped': {'clump_size': 100.0, 'clump_radius': 0.06, 'inclination_std': 25.0},
+    # Blades of 0.3 - 0.45 m, curving over (4 pieces, bend 2) and leaning 30 degrees (std).
+    'tall': {'grass_height': 0.38, 'height_cv': 0.15, 'height_variation': 0.35,
+             'max_height': 0.45, 'inclination_std': 30.0, 'segments': 4, 'bend': 2.0,
+             'blade_width': 0.006},
+    # The default grass and shrubs of 0.2 - 0.4 m, 0.3 - 0.6 m across, 8 per 100 m^2.
+    'bushy': {'bush_density': 0.08},
+    # Clumped, taller, curving grass and some shrubs.
+    'mixed': {'grass_height': 0.3, 'clump_size': 60.0, 'clump_radius': 0.07, 'height_cv': 0.2,
+              'height_variation': 0.5, 'max_height': 0.45, 'inclination_std': 30.0,
+              'segments': 4, 'bend': 2.0, 'bush_density': 0.05},
+}
+# Scan-pattern presets: fields of FlightConfig (tilt), ScanPattern or SensorConfig (prr).
+SCAN: dict[str, dict[str, Any]] = {
+    'line': {},
+    # A 16-beam spinning scanner, its beams fanned +-15 degrees about the 45 degree plane.
+    'spinning': {'beams': 16, 'beam_fov': 30.0, 'spin_rate': 10.0},
+    # A 70 degree rosette looking 20 degrees ahead of the nadir, 100 000 points/s (its returns
+    # crowd into a narrow swath: at the line scanner's rate the speed for the target density
+    # would exceed max_speed).
+    'rosette': {'tilt': 20.0, 'fov': 70.0, 'prr': 100_000.0},
+}
+assert tuple(VEGETATION) == VEGETATION_PRESETS and tuple(SCAN) == SCAN_PATTERNS
 
 
 @dataclass(frozen=True)
@@ -69,6 +113,9 @@ class FlightConfig:
     sensor: SensorConfig = field(default_factory=SensorConfig)
     terrain: TerrainConfig = field(default_factory=lambda: TerrainConfig(wavelength=3.0,
                                                                          octaves=3))
+    vegetation: VegetationConfig = field(default_factory=VegetationConfig)
+    scan: ScanPattern = field(default_factory=ScanPattern)
+    line_spacing: float | None = None  # [m] between passes; None: from the scanner's swath
 
     def validate(self) -> None:
         """Raise :class:`SimulationError` naming the first nonsensical parameter."""
@@ -87,6 +134,8 @@ class FlightConfig:
         finite('max_speed', 0.5, 50.0)
         if self.speed is not None:
             finite('speed', 0.1, 50.0)
+        if self.line_spacing is not None:
+            finite('line_spacing', 0.5, 200.0)
         if not isinstance(self.obstacles, int) or self.obstacles < 0:
             raise SimulationError(f'flight obstacles must be a non-negative integer, got '
                                   f'{self.obstacles!r}')
@@ -111,11 +160,60 @@ class FlightConfig:
             raise SimulationError('flight frame_id must not be empty')
         self.sensor.validate()
         self.terrain.validate()
+        self.vegetation.validate()
+        self.scan.validate()
 
     def to_json(self) -> dict:
         out = asdict(self)
         out['kinds'] = list(self.kinds)
+        out['vegetation'] = self.vegetation.to_dict()
+        out['scan'] = self.scan.to_dict()
         return out
+
+
+def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
+                  density: float | None = None, **overrides: Any) -> FlightConfig:
+    """A :class:`FlightConfig` from a vegetation and a scan-pattern preset, then overrides.
+
+    Args:
+        vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of grass).
+        scan_pattern: one of :data:`SCAN`.
+        density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
+        **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,
+            :class:`ScanPattern` or :class:`SensorConfig`; a value of None leaves the preset's
+            (or the default) value.
+
+    Returns:
+        The configuration (not yet validated: :func:`simulate_flight` does that).
+
+    Raises:
+        SimulationError: an unknown preset or field.
+    """
+    if vegetation not in VEGETATION:
+        raise SimulationError(f'unknown vegetation {vegetation!r}; choose from '
+                              f'{", ".join(VEGETATION)}')
+    if scan_pattern not in SCAN:
+        raise SimulationError(f'unknown scan pattern {scan_pattern!r}; choose from '
+                              f'{", ".join(SCAN)}')
+    flight_fields = {f.name for f in fields(FlightConfig)} - {'vegetation', 'scan'}
+    veg_fields = {f.name for f in fields(VegetationConfig)} - {'preset'}
+    scan_fields = {f.name for f in fields(ScanPattern)} - {'kind'}
+    sensor_fields = {f.name for f in fields(SensorConfig)}
+    settings = {**VEGETATION[vegetation], **SCAN[scan_pattern],
+                **{k: v for k, v in overrides.items() if v is not None}}
+    if density is not None:
+        settings['target_density'] = density
+    unknown = sorted(set(settings) - flight_fields - veg_fields - scan_fields - sensor_fields)
+    if unknown:
+        raise SimulationError(f'unknown flight setting {unknown[0]!r}')
+    cfg = FlightConfig(
+        vegetation=VegetationConfig(preset=vegetation, **{k: v for k, v in settings.items()
+                                                          if k in veg_fields}),
+        scan=ScanPattern(kind=scan_pattern, **{k: v for k, v in settings.items()
+                                               if k in scan_fields}),
+        **{k: v for k, v in settings.items() if k in flight_fields})
+    sensor = {k: v for k, v in settings.items() if k in sensor_fields}
+    return replace(cfg, sensor=replace(cfg.sensor, **sensor)) if sensor else cfg
 
 
 @dataclass
@@ -126,6 +224,7 @@ class Site:
     world: World
     lo: np.ndarray  # (2,) site corner [m]
     hi: np.ndarray  # (2,)
+    bushes: list[Bush] = field(default_factory=list)
 
     @property
     def obstacles(self) -> list[Obstacle]:
@@ -196,7 +295,12 @@ def tile_labels(obstacles: list[Obstacle], lo: np.ndarray, hi: np.ndarray,
 
 
 def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0) -> Site:
-    """Ground, patchy grass and obstacles of a flight's site."""
+    """Ground, patchy grass (or other vegetation) and obstacles of a flight's site.
+
+    Other vegetation than the default draws its blades and shrubs from a randomness of its own
+    (``config.seed``'s) and replays the default blades' draws on ``rng``, so the ground, the
+    patches, the obstacles and everything ``rng`` draws after this are the default's.
+    """
     half = 0.5 * config.size
     lo, hi = np.array([-half, -half]), np.array([half, half])
     terrain = Terrain(config.terrain, rng, lo - config.margin, hi + config.margin)
@@ -215,11 +319,29 @@ def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0)
     grass_cfg = GrassConfig(density=2.0 * config.grass_density, height_mean=g)
     region = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
     region = region + np.sign(region) * min(config.margin, 1.0)
-    grass = grass_mesh(grass_cfg, terrain, rng, region, density_scale, height_scale)
-    obstacles = _place_obstacles(config, terrain, rng, lo, hi)
+    veg = config.vegetation
+    if veg.plain:
+        grass = grass_mesh(grass_cfg, terrain, rng, region, density_scale, height_scale)
+        obstacles = _place_obstacles(config, terrain, rng, lo, hi)
+        bushes: list[Bush] = []
+    else:
+        if grass_cfg.density > 0 and g > 0:
+            _poisson_blades(grass_cfg, rng, region, density_scale, height_scale)  # the draws
+        obstacles = _place_obstacles(config, terrain, rng, lo, hi)
+        vrng = np.random.default_rng(np.random.SeedSequence([config.seed, 0xF11, 0x7E6]))
+
+        def veg_height_scale(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+            return np.clip(1.0 + veg.height_variation * tallness(x, y), 0.4, 1.6)
+
+        blades = vegetation_blades(veg, 2.0 * config.grass_density, g, terrain, vrng, region,
+                                   density_scale, veg_height_scale)
+        keep_out = [(o.x, o.y, o.model.radius + 0.1) for o in obstacles]
+        bushes = (place_bushes(veg, terrain, vrng, region, keep_out)
+                  if veg.bush_density > 0 else [])
+        grass = Mesh.concat([blades, bush_mesh(veg, bushes, vrng)])
     world = World(terrain, grass, obstacles)
     world.caster(threads)
-    return Site(config, world, lo, hi)
+    return Site(config, world, lo, hi, bushes)
 
 
 def _place_obstacles(config: FlightConfig, terrain: Terrain, rng: np.random.Generator,
@@ -243,12 +365,84 @@ def _place_obstacles(config: FlightConfig, terrain: Terrain, rng: np.random.Gene
     return out
 
 
-def _passes(config: FlightConfig) -> np.ndarray:
-    """Cross-track positions (y) of the passes: every site point within half a swath of one."""
-    swath_half = config.height * math.tan(math.radians(_SWATH_ANGLE)) / math.cos(
-        math.radians(config.tilt))
+def _passes(config: FlightConfig, swath_half: float | None = None) -> np.ndarray:
+    """Cross-track positions (y) of the passes: every site point within half a swath of one.
+
+    ``swath_half`` defaults to the line scanner's; ``config.line_spacing``, when given, puts
+    the passes that far apart, centred on the site (as many as it takes to span it).
+    """
+    if config.line_spacing is not None:
+        n = max(1, math.ceil(config.size / config.line_spacing - 1e-9))
+        return (np.arange(n) - 0.5 * (n - 1)) * config.line_spacing
+    if swath_half is None:
+        swath_half = config.height * math.tan(math.radians(_SWATH_ANGLE)) / math.cos(
+            math.radians(config.tilt))
     n = max(1, math.ceil(config.size / (2.0 * swath_half)))
     return -0.5 * config.size + (np.arange(n) + 0.5) * config.size / n
+
+
+@dataclass
+class _Footprint:
+    """Where a scan pattern's pulses meet flat ground, seen from the moving vehicle."""
+
+    y: np.ndarray  # cross-track bin centres [m]
+    rate: np.ndarray  # returns per second per metre of cross-track at y
+    swath_half: float  # [m]
+    reach: tuple[float, float]  # along-track extent of the returns (behind, ahead) [m]
+
+
+def _pattern_footprint(config: FlightConfig, seconds: float = 1.0) -> _Footprint:
+    """The footprint of ``config.scan`` on flat ground ``config.height`` below, sampled over
+    ``seconds`` of pulses at heading 0.
+
+    The swath is where the cross-track rate stays at or above 0.6 of its mean over the middle
+    (a quarter of the height either side; the line scanner's 40 of 50 degrees keep about that
+    share of its centre's density); the reach holds all but 0.5 % of the returns at either end
+    among those that can fall on the site.
+    """
+    s, h = config.sensor, config.height
+    n = max(int(round(seconds * s.prr)), 1000)
+    idx = np.arange(n)
+    local = config.scan.local_directions(idx / s.prr, idx)
+    d = local @ mount_frame(math.radians(config.tilt), np.zeros(1))[0].T
+    down = d[:, 2] < -1e-9
+    t = np.full(n, np.inf)
+    t[down] = h / -d[down, 2]
+    ok = t <= s.max_range
+    x, y = (t[ok, None] * d[ok, :2]).T
+    span = 4.0 * h + config.size
+    bin_w = max(0.01 * h, 0.02)
+    edges = np.arange(-span, span + 0.5 * bin_w, bin_w)
+    counts, _ = np.histogram(y, edges)
+    rate = counts / (n / s.prr) / bin_w
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    # Smooth over about 0.1 h so that the rosette's petals do not end the swath early.
+    k = max(1, int(round(0.1 * h / bin_w)))
+    smooth = np.convolve(rate, np.ones(2 * k + 1) / (2 * k + 1), mode='same')
+    middle = np.abs(centres) <= 0.25 * h
+    ref = float(smooth[middle].mean())
+    if ref <= 0:
+        raise SimulationError(f'the {config.scan.kind} scanner tilted {config.tilt:g} degrees '
+                              f'puts no returns under the vehicle')
+    covered = smooth >= 0.6 * ref
+    right = np.flatnonzero(~covered & (centres > 0))
+    left = np.flatnonzero(~covered & (centres < 0))
+    w_r = centres[right[0]] if len(right) else span
+    w_l = -centres[left[-1]] if len(left) else span
+    near = np.abs(y) <= config.size  # the returns that can fall on the site
+    lo_x, hi_x = np.quantile(x[near], [0.005, 0.995]) if near.any() else (0.0, 0.0)
+    return _Footprint(centres, rate, float(min(w_r, w_l)), (float(lo_x), float(hi_x)))
+
+
+def _footprint_density_constant(config: FlightConfig, passes: np.ndarray,
+                                foot: _Footprint) -> float:
+    """K such that the mean density over the site on flat ground is K / speed (any pattern):
+    at cross-track offset y from a pass, the vehicle sweeps rate(y) returns per second over
+    each metre across, spread along ``speed`` metres of track."""
+    y = np.linspace(-0.5 * config.size, 0.5 * config.size, 2001)
+    cover = np.interp(y[:, None] - passes[None, :], foot.y, foot.rate, left=0.0,
+                      right=0.0).sum(axis=1)
+    return float(cover.mean())
 
 
 def _density_constant(config: FlightConfig, passes: np.ndarray) -> float:
@@ -282,9 +476,13 @@ def _quaternion(heading: np.ndarray, tilt: float) -> np.ndarray:
 class _Lawnmower:
     """Passes along +x / -x (alternating) at constant speed, joined by straight turns."""
 
-    def __init__(self, config: FlightConfig, passes: np.ndarray, speed: float) -> None:
+    def __init__(self, config: FlightConfig, passes: np.ndarray, speed: float,
+                 reach: tuple[float, float] | None = None) -> None:
         half = 0.5 * config.size
-        ahead = config.height * math.tan(math.radians(config.tilt))
+        if reach is None:
+            ahead = config.height * math.tan(math.radians(config.tilt))
+            reach = (ahead, ahead)
+        behind, ahead = reach  # along-track extent of the returns from the vehicle
         run = 1.0  # [m] scanned beyond the site's edge at both ends
         self.height = config.height
         self.speed = speed
@@ -293,10 +491,11 @@ class _Lawnmower:
         prev_end = None
         for k, y in enumerate(passes):
             sign = 1.0 if k % 2 == 0 else -1.0
-            # The ground line lies `ahead` in front: the vehicle runs from before the site
-            # until the line has crossed it.
+            # The ground line lies `ahead` in front (for other scanners: the returns lie
+            # `behind` .. `ahead` in front): the vehicle runs from before the site until all
+            # of them have crossed it.
             x0 = sign * (-half - run - ahead)
-            x1 = sign * (half + run - ahead)
+            x1 = sign * (half + run - behind)
             start, end = np.array([x0, y]), np.array([x1, y])
             if prev_end is not None:
                 dt = float(np.hypot(*(start - prev_end))) / speed
@@ -351,13 +550,20 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
     site = build_site(config, rng, threads)
     timings['site'] = time.perf_counter() - t0
 
-    passes = _passes(config)
-    k = _density_constant(config, passes)
+    if config.scan.kind == 'line':
+        passes = _passes(config)
+        k = _density_constant(config, passes)
+        reach = None
+    else:
+        foot = _pattern_footprint(config)
+        passes = _passes(config, foot.swath_half)
+        k = _footprint_density_constant(config, passes, foot)
+        reach = foot.reach
     speed = config.speed
     if speed is None:
         speed = min(k / config.sensor.target_density, config.max_speed)
     speed = float(speed)
-    path = _Lawnmower(config, passes, speed)
+    path = _Lawnmower(config, passes, speed, reach)
     tilt = math.radians(config.tilt)
     walk = BrownianWalk(config.sensor.wander_sigma, rng)
     caster = site.world.caster(threads)
@@ -367,7 +573,8 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
     per_chunk = 40 * config.lines_per_cloud
     for seg in path.segments:
         scans.append(path_scan(caster, config.sensor, path, seg[0], seg[1], tilt, rng,
-                               walk=walk, lines_per_chunk=per_chunk) if seg[5] else None)
+                               walk=walk, lines_per_chunk=per_chunk, pattern=config.scan)
+                     if seg[5] else None)
     timings['scan'] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -375,7 +582,10 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
     n_clouds, n_points, on_site = _write_bag(out, config, scans, path, overwrite)
     labels = {'frame_id': config.frame_id, 'tile_size': 1.0, 'tiles': tiles,
               'obstacles': [o.to_json() for o in site.obstacles],
-              'site': {'lo': site.lo.tolist(), 'hi': site.hi.tolist()},
+              'site': {'lo': site.lo.tolist(), 'hi': site.hi.tolist(),
+                       'vegetation': config.vegetation.to_dict(),
+                       'scan_pattern': config.scan.to_dict()},
+              'bushes': [b.to_json() for b in site.bushes],
               'flight': config.to_json() | {'speed': speed, 'passes': passes.tolist()}}
     tmp = labels_path.with_name(labels_path.name + '.tmp')
     tmp.write_text(json.dumps(labels, indent=1) + '\n', encoding='utf-8')

@@ -26,7 +26,9 @@ the angular window of each sweep is computed from the box, which is what makes a
 cheap (a few ten thousand rays instead of the millions of a full 100 x 100 degree sweep).
 
 Flying (:func:`path_scan`): every pulse of every line along a trajectory (a pushbroom), the
-scan plane tilted forward by a fixed nod angle.
+scan plane tilted forward by a fixed nod angle. Or, with a :class:`ScanPattern` other than
+``line``, the pulses of another scanner mounted the same way (its centre tilted forward by the
+same angle): a spinning multi-beam scanner or a rosette (non-repetitive) scanner, see there.
 """
 from __future__ import annotations
 
@@ -43,7 +45,7 @@ from landing_zone.sim.raycast import RayCaster
 
 __all__ = ['SensorConfig', 'Returns', 'HoverScan', 'BrownianWalk', 'scan_directions',
            'direction_angles', 'ray_box_interval', 'hover_scan', 'estimate_nod_rate',
-           'path_scan']
+           'path_scan', 'SCAN_PATTERNS', 'ScanPattern', 'mount_frame']
 
 # Share of the pulse energy each class reflects (intensities only: a plausible ordering).
 _REFLECTIVITY = {GROUND: 0.25, GRASS: 0.45, OBSTACLE: 0.35}
@@ -110,6 +112,108 @@ class SensorConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+SCAN_PATTERNS = ('line', 'spinning', 'rosette')
+
+
+@dataclass(frozen=True)
+class ScanPattern:
+    """Where a flying scanner's pulses go, in its own frame (x: the centre of the pattern, z: the
+    spin axis of a spinning scanner), at the sensor's pulse rate.
+
+    The frame is mounted like the line scanner's: pitched so that x points ``tilt`` forward of
+    the nadir and y across the flight direction (z then points forward and up, ``tilt`` above
+    the horizon), and turned with the vehicle's heading.
+
+    * ``line``: the nodding line scanner held at the tilt (the default; :class:`SensorConfig`
+      gives its lines).
+    * ``spinning``: a multi-beam scanner (Velodyne/Ouster-like) spinning at ``spin_rate`` about
+      z; ``beams`` beams at elevations evenly spread over ``beam_fov`` fire one after the
+      other, so beam ``i % beams`` fires pulse i at the azimuth the head has reached by then.
+      Beam elevation 0 sweeps the plane of the line scanner (tilted forward by ``tilt``) and on
+      round to the sky behind; every beam draws a cone, on the ground a curve.
+    * ``rosette``: a Risley-prism scanner (Livox-like): the pulse's angular offset from x is
+      the sum of two vectors of length ``fov / 4`` turning in opposite senses at
+      ``prism_rates`` [rev/s]; with an irrational ratio the petals never repeat and the circle
+      of diameter ``fov`` fills up over time, densest at its centre and rim.
+
+    Points per second are the sensor's ``prr`` in every pattern; the pulses are grouped into
+    "lines" of ``SensorConfig.pulses_per_line`` (the clouds and poses of a flight follow them).
+    """
+
+    kind: str = 'line'  # one of SCAN_PATTERNS
+    beams: int = 16  # spinning: beams
+    beam_fov: float = 30.0  # spinning: spread of the beams' elevations [deg]
+    spin_rate: float = 10.0  # spinning: [rev/s]
+    fov: float = 70.0  # rosette: diameter of the circular field of view [deg]
+    prism_rates: tuple[float, float] = (120.0, 74.16407864998739)  # rosette [rev/s] (ratio phi)
+
+    def validate(self) -> None:
+        """Raise :class:`SimulationError` naming the first nonsensical parameter."""
+        if self.kind not in SCAN_PATTERNS:
+            raise SimulationError(f'unknown scan pattern {self.kind!r}; choose from '
+                                  f'{", ".join(SCAN_PATTERNS)}')
+        if not (isinstance(self.beams, int) and 1 <= self.beams <= 256):
+            raise SimulationError(f'scan beams must be an integer in [1, 256], got '
+                                  f'{self.beams!r}')
+        for name, low, high in (('beam_fov', 0.0, 90.0), ('spin_rate', 0.1, 100.0),
+                                ('fov', 1.0, 120.0)):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value)
+                    and low <= value <= high):
+                raise SimulationError(f'scan {name} must lie in [{low:g}, {high:g}], got '
+                                      f'{value!r}')
+        rates = self.prism_rates
+        if not (isinstance(rates, (tuple, list)) and len(rates) == 2
+                and all(isinstance(r, (int, float)) and math.isfinite(r) and 0 < r <= 1000
+                        for r in rates) and rates[0] != rates[1]):
+            raise SimulationError(f'scan prism_rates must be two different rates in (0, 1000] '
+                                  f'rev/s, got {rates!r}')
+
+    def local_directions(self, times: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """Unit directions (..., 3) in the scanner's frame of the pulses fired at ``times``
+        [s] with pulse numbers ``index`` (spinning: the beam is ``index % beams``)."""
+        times = np.asarray(times, dtype=float)
+        if self.kind == 'spinning':
+            if self.beams > 1:
+                step = math.radians(self.beam_fov) / (self.beams - 1)
+                elev = (np.mod(index, self.beams) - 0.5 * (self.beams - 1)) * step
+            else:
+                elev = np.zeros(np.shape(index))
+            az = 2.0 * np.pi * np.mod(self.spin_rate * times, 1.0)
+            ce = np.cos(elev)
+            return np.stack(np.broadcast_arrays(ce * np.cos(az), ce * np.sin(az), np.sin(elev)),
+                            axis=-1)
+        if self.kind == 'rosette':
+            a = 0.25 * math.radians(self.fov)
+            w1 = 2.0 * np.pi * np.mod(self.prism_rates[0] * times, 1.0)
+            w2 = 2.0 * np.pi * np.mod(self.prism_rates[1] * times, 1.0)
+            dy = a * (np.cos(w1) + np.cos(w2))
+            dz = a * (np.sin(w1) - np.sin(w2))
+            rho = np.hypot(dy, dz)
+            sinc = np.where(rho > 0, np.sin(rho) / np.where(rho > 0, rho, 1.0), 1.0)
+            return np.stack([np.cos(rho), sinc * dy, sinc * dz], axis=-1)
+        raise SimulationError('the line pattern has no pulse directions of its own '
+                              '(see scan_directions)')
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out['prism_rates'] = list(self.prism_rates)
+        return out
+
+
+def mount_frame(tilt: float, heading: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations (columns: the scanner's x, y, z in the world) of a scanner whose x
+    points ``tilt`` [rad] forward of the nadir, y to the left, turned by ``heading`` [rad]."""
+    heading = np.atleast_1d(np.asarray(heading, dtype=float))
+    ch, sh = np.cos(heading), np.sin(heading)
+    st, ct = math.sin(tilt), math.cos(tilt)
+    zeros = np.zeros_like(ch)
+    x = np.stack([st * ch, st * sh, np.full_like(ch, -ct)], axis=-1)
+    y = np.stack([-sh, ch, zeros], axis=-1)
+    z = np.stack([ct * ch, ct * sh, np.full_like(ch, st)], axis=-1)
+    return np.stack([x, y, z], axis=-1)
 
 
 @dataclass
@@ -503,7 +607,7 @@ def path_scan(caster: RayCaster, sensor: SensorConfig,
               trajectory: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
               t_start: float, t_end: float, tilt: float, rng: np.random.Generator,
               walk: BrownianWalk | None = None, lines_per_chunk: int = 256,
-              ) -> 'list[Returns]':
+              pattern: ScanPattern | None = None) -> 'list[Returns]':
     """Every pulse of every scan line from ``t_start`` to ``t_end`` along a trajectory.
 
     Args:
@@ -515,11 +619,17 @@ def path_scan(caster: RayCaster, sensor: SensorConfig,
         rng: randomness of the range noise (and of the wander, if ``walk`` is None).
         walk: the origin's random walk, shared across calls so that it stays continuous.
         lines_per_chunk: lines cast per batch (memory: lines x pulses rays).
+        pattern: another scanner in the same mount (None or ``line``: the line scanner); its
+            "lines" are runs of ``sensor.pulses_per_line`` pulses.
 
     Returns:
         One :class:`Returns` per chunk of lines, in time order, with intensities.
     """
     sensor.validate()
+    if pattern is not None:
+        pattern.validate()
+        if pattern.kind == 'line':
+            pattern = None
     walk = walk if walk is not None else BrownianWalk(sensor.wander_sigma, rng)
     period = sensor.line_period
     first = int(math.ceil(t_start / period - 1e-9))
@@ -536,8 +646,13 @@ def path_scan(caster: RayCaster, sensor: SensorConfig,
         line_times = lines * period
         nominal, heading = trajectory(line_times)
         origins = nominal + walk.at(line_times)
-        dirs = scan_directions(thetas[None, :], np.full((len(lines), 1), tilt),
-                               heading[:, None]).reshape(-1, 3)
+        if pattern is None:
+            dirs = scan_directions(thetas[None, :], np.full((len(lines), 1), tilt),
+                                   heading[:, None]).reshape(-1, 3)
+        else:
+            index = lines[:, None] * len(thetas) + np.arange(len(thetas))[None, :]
+            local = pattern.local_directions(line_times[:, None] + offsets[None, :], index)
+            dirs = np.einsum('lij,lpj->lpi', mount_frame(tilt, heading), local).reshape(-1, 3)
         line_of = np.repeat(np.arange(len(lines)), len(thetas))
         org = origins[line_of]
         hits = caster.cast(org, dirs, sensor.max_range)
