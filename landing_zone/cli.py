@@ -162,13 +162,16 @@ class Device(str, Enum):
                   '--arch C7-F32-P2-C5-F64-P2-D512 --out model.safetensors\n\n'
                   '  landing-zone train --data data/synth2 --out model.safetensors --resume\n\n'
                   '  landing-zone train --data data/synth2 --out m.safetensors --device cuda '
-                  '--workers 15 --cache-voxels 20')
+                  '--workers 15 --cache-voxels 20\n\n'
+                  '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
+                  '--out site.safetensors --lr 0.001 --epochs 3  (site adaptation)')
 def train(
     data: Annotated[Path, typer.Option(help='Dataset directory (landing-zone simulate).')],
     out: Annotated[Path, typer.Option(help='Model file to write (.safetensors).')],
-    arch: Annotated[str, typer.Option(
-        help='Network spec (default: the shipped model\'s; the paper\'s best is '
-             'C7-F32-P2-C5-F64-P2-D512).')] = 'P2-C5-F32-P2-C3-F64-D128',
+    arch: Annotated[Optional[str], typer.Option(
+        help='Network spec; default the --init model\'s, else the shipped model\'s '
+             '(P2-C5-F32-P2-C3-F64-D128; the paper\'s best is C7-F32-P2-C5-F64-P2-D512).',
+        show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
     lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
     momentum: Annotated[float, typer.Option(help='SGD momentum.')] = 0.9,
@@ -199,8 +202,11 @@ def train(
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec).')] = None,
 ) -> None:
+    from landing_zone.model import DEFAULT_SPEC, read_metadata
     from landing_zone.train import TrainConfig, train as run_train
 
+    if arch is None:
+        arch = read_metadata(init)['model']['spec'] if init is not None else DEFAULT_SPEC
     cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, momentum=momentum,
                       weight_decay=weight_decay, batch_size=batch_size,
                       augment_copies=augment_copies, max_samples=max_samples,
