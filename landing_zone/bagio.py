@@ -13,7 +13,10 @@ Reading (:func:`read_messages`, :func:`bag_topics`) accepts
   (``sensor_msgs/msg/PointCloud2``, headers with ``builtin_interfaces/msg/Time`` stamps).
 
 Messages come out in the bag's log-time order, deserialized into rosbags dataclasses whose field
-names are rclpy's, so ``msg_adapters`` decodes them like live messages.
+names are rclpy's, so ``msg_adapters`` decodes them like live messages. :class:`RawBag` reads
+the same bags without deserializing: every message's CDR bytes (a ROS 1 message converted to
+CDR) and the type definitions to write them again, so a tool can copy a bag message for message,
+byte for byte, with :meth:`BagWriter.write_raw`.
 
 Writing (:class:`BagWriter`) produces a ROS 2 bag with MCAP storage, version 9. A path ending in
 ``.mcap`` becomes that one self-describing file (schemas, channels and the rosbag2 metadata
@@ -43,6 +46,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     'BagMessage',
+    'RawMessage',
+    'RawBag',
     'typestore',
     'read_messages',
     'bag_topics',
@@ -57,6 +62,15 @@ class BagMessage(NamedTuple):
     stamp_ns: int  # the bag's log (receive) time; the header stamp may differ
     msgtype: str  # ROS 2 type name, 'sensor_msgs/msg/PointCloud2'
     msg: Any  # rosbags dataclass with rclpy's field names
+
+
+class RawMessage(NamedTuple):
+    """One message of a bag as it is stored, CDR-serialized (ROS 1 messages converted)."""
+
+    topic: str
+    stamp_ns: int  # the bag's log (receive) time
+    msgtype: str  # ROS 2 type name
+    data: bytes | memoryview  # CDR with its 4-byte encapsulation header
 
 
 @functools.lru_cache(maxsize=1)
@@ -286,6 +300,181 @@ class _McapSource:
                 raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
             yield BagMessage(channel.topic, int(message.log_time), msgtype, msg)
 
+    def channels(self) -> list[tuple[Any, Any]]:
+        """``(channel, schema or None)`` of every channel, from the summary or a scan."""
+        try:
+            summary = self._reader.get_summary()
+            if summary is not None:
+                return [(c, summary.schemas.get(c.schema_id) if c.schema_id else None)
+                        for c in summary.channels.values()]
+            from mcap.records import Channel, Schema
+            from mcap.stream_reader import StreamReader
+            self._file.seek(0)
+            schemas: dict[int, Any] = {}
+            found: list[tuple[Any, Any]] = []
+            for record in StreamReader(self._file).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    found.append((record, schemas.get(record.schema_id)))
+            return found
+        except Exception as err:  # mcap raises McapError, KeyError, struct.error on corruption
+            raise BagError(f'cannot read bag {self.path}: {_describe(err)}') from err
+
+    def channel_type(self, channel: Any, schema: Any) -> tuple[Typestore, str]:
+        """The typestore and type name a channel's messages deserialize with."""
+        if channel.message_encoding != 'cdr':
+            raise BagError(f'{self.path}: topic {channel.topic} has message encoding '
+                           f'{channel.message_encoding!r}; only cdr is supported')
+        if schema is None:
+            # No schema in the file: rosbag2 readers fall back to the installed types.
+            return typestore(), _schemaless_type(self.path, channel)
+        if schema.id not in self._registered:
+            try:
+                self._register(schema)
+            except BagError:
+                raise
+            except Exception as err:  # a schema rosbags cannot parse
+                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
+        assert self._store is not None
+        return self._store, schema.name
+
+    def raw_messages(self, wanted: set[str] | None) -> Iterator[tuple[Any, Any, Any]]:
+        """``(schema, channel, message)`` records in log-time order, not deserialized."""
+        if wanted is not None and not wanted:
+            return
+        stream = self._reader.iter_messages(topics=sorted(wanted) if wanted else None,
+                                            log_time_order=True)
+        while True:
+            try:
+                record = next(stream)
+            except StopIteration:
+                return
+            except Exception as err:  # corrupt chunk
+                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
+            yield record
+
+
+class RawBag:
+    """A bag read message by message as CDR bytes, with the definitions of its types.
+
+    Reads what :func:`read_messages` reads. A ROS 2 bag's messages come as stored; a ROS 1
+    bag's are converted to CDR (with the bag's own type definitions, ROS 1 header ``seq``
+    included). :meth:`types_of` gives the typestore holding each topic's type as the bag defines
+    it, for :meth:`BagWriter.add_topic`, so a copy keeps every topic and type.
+
+    Example::
+
+        with RawBag('in.mcap') as src, BagWriter('out.mcap') as dst:
+            for topic, msgtype in src.topics.items():
+                dst.add_topic(topic, msgtype, types=src.types_of(topic))
+            for m in src.messages():
+                dst.write_raw(m.topic, m.stamp_ns, m.data)
+
+    Args:
+        path: Bag directory, ``.mcap`` / ``.db3`` file or ROS 1 ``.bag`` file.
+
+    Raises:
+        BagError: On entering: the bag is missing, not a bag or unreadable.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]):
+        self.path = Path(path)
+        self.topics: dict[str, str] = {}
+        self._kind, self._target = _kind(self.path)
+        self._mcap: _McapSource | None = None
+        self._any: Any = None
+        self._types: dict[str, tuple[Typestore, str]] = {}
+
+    def __enter__(self) -> RawBag:
+        if self._kind == 'mcap':
+            self._mcap = _McapSource(self._target).__enter__()
+            try:
+                for channel, schema in self._mcap.channels():
+                    store, msgtype = self._mcap.channel_type(channel, schema)
+                    self._types.setdefault(channel.topic, (store, msgtype))
+            except BaseException:
+                self.close()
+                raise
+        else:
+            from rosbags.highlevel import AnyReader
+            try:
+                self._any = AnyReader([self._target], default_typestore=typestore())
+                self._any.open()
+            except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors
+                self._any = None
+                raise BagError(f'cannot open bag {self.path}: {_describe(err)}') from err
+            for connection in self._any.connections:
+                self._types.setdefault(connection.topic,
+                                       (self._any.typestore, connection.msgtype))
+        self.topics = {topic: msgtype for topic, (_, msgtype) in self._types.items()}
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._mcap is not None:
+            self._mcap.close()
+            self._mcap = None
+        if self._any is not None:
+            self._any.close()
+            self._any = None
+
+    def types_of(self, topic: str) -> Typestore:
+        """The typestore that defines ``topic``'s type as this bag does."""
+        return self._types[topic][0]
+
+    def deserialize(self, message: RawMessage) -> Any:
+        """The rosbags dataclass of a message.
+
+        Raises:
+            BagError: The bytes do not hold a message of its type.
+        """
+        store = self._types[message.topic][0]
+        try:
+            return store.deserialize_cdr(message.data, message.msgtype)
+        except Exception as err:  # rosbags' SerdeError, struct errors, index errors
+            raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        """The messages in log-time order.
+
+        Args:
+            topics: Only these topics (every one must be in the bag); ``None`` for all.
+
+        Raises:
+            BagError: A requested topic is absent, or the bag is corrupt (also mid-way).
+        """
+        wanted = _check_topics(self.path, self.topics, topics)
+        if self._mcap is not None:
+            for schema, channel, message in self._mcap.raw_messages(wanted):
+                _, msgtype = self._mcap.channel_type(channel, schema)
+                yield RawMessage(channel.topic, int(message.log_time), msgtype, message.data)
+            return
+        reader = self._any
+        if reader is None:
+            raise BagError(f'bag {self.path} is not open')
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        if not connections:
+            return
+        stream = reader.messages(connections=connections)
+        while True:
+            try:
+                connection, stamp, raw = next(stream)
+                if reader.is2:
+                    data = raw
+                else:  # (rosbags' ros1_to_cdr fails on headers of a store built from a bag)
+                    store = reader.typestore
+                    data = store.serialize_cdr(store.deserialize_ros1(raw, connection.msgtype),
+                                               connection.msgtype)
+            except StopIteration:
+                return
+            except Exception as err:  # a corrupt record deep in the bag: any error of the libs
+                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
+            yield RawMessage(connection.topic, int(stamp), connection.msgtype, data)
+
 
 def _schemaless_type(path: Path, channel: Any) -> str:
     """The type of a channel without schema, from its rosbag2 metadata if it has one."""
@@ -372,8 +561,14 @@ class BagWriter:
             self._cleanup()
             raise BagError(f'cannot write bag {self.path}: {_describe(err)}') from err
 
-    def add_topic(self, topic: str, msgtype: str) -> None:
+    def add_topic(self, topic: str, msgtype: str, *, types: Typestore | None = None) -> None:
         """Declare a topic and its ROS 2 message type (``'sensor_msgs/msg/PointCloud2'``).
+
+        Args:
+            topic: Topic name.
+            msgtype: ROS 2 type name.
+            types: Typestore whose definition of ``msgtype`` is written for this topic (a bag
+                being copied: :meth:`RawBag.types_of`); default the writer's.
 
         Raises:
             BagError: The bag is not open, the topic exists, or the type is unknown.
@@ -382,11 +577,12 @@ class BagWriter:
             raise BagError(f'bag {self.path} is not open')
         if topic in self._connections:
             raise BagError(f'topic {topic} was added twice to {self.path}')
-        if msgtype not in self.types.types:
+        store = types if types is not None else self.types
+        if msgtype not in store.types:
             raise BagError(f'message type {msgtype} is unknown to the typestore')
         try:
             self._connections[topic] = self._writer.add_connection(topic, msgtype,
-                                                                   typestore=self.types)
+                                                                   typestore=store)
         except Exception as err:
             raise BagError(f'cannot add topic {topic} to {self.path}: {_describe(err)}') from err
 
@@ -408,6 +604,20 @@ class BagWriter:
         except Exception as err:  # rosbags' SerdeError, struct errors on out-of-range values
             raise BagError(f'cannot write a {connection.msgtype} to {topic}: '
                            f'{_describe(err)}') from err
+
+    def write_raw(self, topic: str, stamp_ns: int, data: bytes | memoryview) -> None:
+        """Write a message already serialized to CDR (as :class:`RawBag` yields them).
+
+        Raises:
+            BagError: Unknown topic or a failed write.
+        """
+        connection = self._connections.get(topic)
+        if connection is None or self._writer is None:
+            raise BagError(f'topic {topic} was not added to {self.path}')
+        try:
+            self._writer.write(connection, int(stamp_ns), data)
+        except Exception as err:
+            raise BagError(f'cannot write to {topic} of {self.path}: {_describe(err)}') from err
 
     def close(self) -> None:
         """Finish the bag and move it into place."""

@@ -24,6 +24,7 @@ app = typer.Typer(
          '  landing-zone demo\n\n'
          '  landing-zone simulate-flight --out site.mcap --seed 3\n\n'
          '  landing-zone replay site.mcap --out assessed.mcap --report report.json\n\n'
+         '  landing-zone insert-obstacles site.mcap --out hybrid.mcap --count 6\n\n'
          '  landing-zone simulate --dataset synth2 --out data/synth2 --scenes 2000\n\n'
          '  landing-zone train --data data/synth2 --out model.safetensors\n\n'
          '  landing-zone evaluate --data data/synth2 --baselines --json results.json\n\n'
@@ -115,6 +116,61 @@ def replay(
           + (f', best at ({a.sites[0].x:.1f}, {a.sites[0].y:.1f}) with P(safe) '
              f'{a.sites[0].p_safe:.2f}' if a.sites else ''))
     print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
+
+
+# --- insert-obstacles -------------------------------------------------------------------------
+
+@app.command(name='insert-obstacles',
+             help='Insert virtual obstacles of the simulator\'s library into a recorded flight: '
+                  'every return whose ray meets an obstacle first moves onto its surface (plus '
+                  'range noise), every other byte of the bag stays as it was. Writes OUT.mcap '
+                  'and OUT.labels.json (the flight\'s labels, or its covered tiles as safe, '
+                  'with the tiles under the inserted obstacles unsafe).\n\n'
+                  'Examples:\n\n  landing-zone insert-obstacles site.mcap --out hybrid.mcap '
+                  '--count 6\n\n'
+                  '  landing-zone insert-obstacles flight.bag --out h.mcap --region -5 -5 5 5 '
+                  '--kinds rock,tire --group train --seed 2\n\n'
+                  '  landing-zone insert-obstacles site.mcap --out h.mcap --labels '
+                  'site.labels.json --points-topic /points --pose-topic /sensor_pose')
+def insert_obstacles(
+    bag: Annotated[Path, typer.Argument(
+        help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
+    out: Annotated[Path, typer.Option(help='Output bag (.mcap); labels go beside it.')],
+    count: Annotated[int, typer.Option(help='Obstacles to insert.')] = 6,
+    kinds: Annotated[str, typer.Option(
+        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box), cycled.')]
+    = 'rock,tire,cinder_block,box',
+    group: Annotated[str, typer.Option(
+        help='train or test: the obstacle models of that dataset split.')] = 'test',
+    region: Annotated[Optional[tuple[float, float, float, float]], typer.Option(
+        help='X0 Y0 X1 Y1 where obstacles may stand; default the labels\' safe tiles.')]
+    = None,
+    labels: Annotated[Optional[Path], typer.Option(
+        help='SITE.labels.json of the flight; default BAG.labels.json beside the bag.')]
+    = None,
+    seed: Annotated[int, typer.Option(help='Seed of placement and range noise.')] = 0,
+    range_noise: Annotated[float, typer.Option(
+        help='Range noise (standard deviation) of the moved returns [m].')] = 0.025,
+    points_topic: Annotated[str, typer.Option(
+        help='PointCloud2 topic (fixed frame).')] = '/lidar/points',
+    pose_topic: Annotated[str, typer.Option(
+        help='PoseStamped topic of the sensor.')] = '/lidar/pose',
+    frame_id: Annotated[str, typer.Option(help='The fixed frame of clouds and poses.')] = 'map',
+    overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
+) -> None:
+    from landing_zone.insert import insert_obstacles as run_insert
+
+    r = run_insert(bag, out, count=count, seed=seed,
+                   kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()), group=group,
+                   region=region, labels=labels, points_topic=points_topic,
+                   pose_topic=pose_topic, frame_id=frame_id, range_sigma=range_noise,
+                   overwrite=overwrite)
+    names = ', '.join(f'{o.model.name} at ({o.x:.1f}, {o.y:.1f})' for o in r.obstacles)
+    print(f'inserted {len(r.obstacles)} obstacle(s): {names}')
+    print(f'{r.altered:,} of {r.returns:,} returns moved onto them, in {r.altered_clouds} of '
+          f'{r.clouds} clouds ({r.skipped_clouds} left as they were: no pose or other frame); '
+          f'{r.messages} messages in {r.seconds:.1f} s')
+    print(f'wrote {r.bag}, {r.labels}')
 
 
 # --- play -------------------------------------------------------------------------------------

@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from landing_zone.config import AssessorConfig
     from landing_zone.stream import Stream, StreamConfig
 
-__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME']
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME',
+           'check_bag_topics']
 
 NODE_NAME = 'assessor'
 POINTS_TYPE = 'sensor_msgs/msg/PointCloud2'
@@ -118,7 +119,8 @@ class _Outputs:
         self.seconds += time.perf_counter() - t0
 
 
-def _check_topics(bag: Path, points_topic: str, pose_topic: str) -> None:
+def check_bag_topics(bag: Path, points_topic: str, pose_topic: str) -> None:
+    """Raise BagError unless the bag has both topics with the right types (one line)."""
     from landing_zone.bagio import bag_topics
 
     topics = bag_topics(bag)
@@ -173,7 +175,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
 
     t_start = time.perf_counter()
     bag = Path(bag)
-    _check_topics(bag, points_topic, pose_topic)
+    check_bag_topics(bag, points_topic, pose_topic)
     if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
         raise ConfigError(f'center must be two finite numbers, got {center!r}')
     assessor = Assessor(config, center=center, model=model)

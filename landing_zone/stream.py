@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from landing_zone.config import AssessorConfig
 
 __all__ = ['StreamConfig', 'Stream', 'CLOUD_REASONS', 'POINT_REASONS', 'read_params_file',
-           'configs_from_flat']
+           'configs_from_flat', 'read_pose_msg', 'read_cloud_header']
 
 NS = 1_000_000_000
 CLOUD_REASONS = ('malformed', 'wrong_frame', 'out_of_order', 'too_old', 'no_pose', 'queue_full')
@@ -150,12 +150,9 @@ class Stream:
 
     def add_pose_msg(self, msg: Any) -> None:
         """Add a ``geometry_msgs/PoseStamped`` (rclpy or rosbags); bad ones are counted."""
-        from msg_adapters.pose import pose_stamped_to_arrays
-
         try:
-            frame = msg.header.frame_id
-            stamp_ns, position, quaternion = pose_stamped_to_arrays(msg)
-        except (InvalidPoseError, AttributeError) as err:
+            frame, stamp_ns, position, quaternion = read_pose_msg(msg)
+        except InvalidPoseError as err:
             self._drop_pose('bad_pose', f'pose dropped: {err}')
             return
         if frame != self.frame_id:
@@ -183,17 +180,15 @@ class Stream:
 
     def add_cloud_msg(self, msg: Any) -> None:
         """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted."""
-        from msg_adapters import stamp_to_ns
         from msg_adapters.pointcloud import cloud_to_xyz
 
         self.received_clouds += 1
         n_points = _declared_points(msg)
         self.received_points += n_points
         try:
-            frame = msg.header.frame_id
-            stamp_ns = stamp_to_ns(msg.header.stamp)
-        except (AttributeError, TypeError, ValueError) as err:
-            self._drop_cloud('malformed', n_points, f'cloud dropped: bad header ({err})')
+            frame, stamp_ns = read_cloud_header(msg)
+        except InvalidCloudError as err:
+            self._drop_cloud('malformed', n_points, f'cloud dropped: {err}')
             return
         if frame != self.frame_id:
             self._drop_cloud('wrong_frame', n_points,
@@ -483,6 +478,39 @@ def configs_from_flat(flat: dict[str, Any]) -> tuple[AssessorConfig, StreamConfi
         raise ConfigError(f'bad parameter value: {err}') from err
     stream.validate()
     return cfg, stream, rest
+
+
+def read_pose_msg(msg: Any) -> tuple[str, int, np.ndarray, np.ndarray]:
+    """A ``geometry_msgs/PoseStamped`` as the stream takes it (the node and the bag tools alike).
+
+    Returns:
+        ``(frame_id, stamp_ns, position (3,), unit quaternion (4,) xyzw)``.
+
+    Raises:
+        InvalidPoseError: Not a PoseStamped, non-finite, or a zero quaternion.
+    """
+    from msg_adapters.pose import pose_stamped_to_arrays
+
+    try:
+        frame = msg.header.frame_id
+    except AttributeError as err:
+        raise InvalidPoseError(f'not a geometry_msgs/PoseStamped: {err}') from None
+    return (frame, *pose_stamped_to_arrays(msg))
+
+
+def read_cloud_header(msg: Any) -> tuple[str, int]:
+    """``(frame_id, stamp_ns)`` of a ``sensor_msgs/PointCloud2``: the stamp whose interpolated
+    pose is the cloud's sensor origin.
+
+    Raises:
+        InvalidCloudError: The header is missing or its stamp is not an integer time.
+    """
+    from msg_adapters import stamp_to_ns
+
+    try:
+        return msg.header.frame_id, stamp_to_ns(msg.header.stamp)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise InvalidCloudError(f'bad header ({err})') from None
 
 
 def _declared_points(msg: Any) -> int:

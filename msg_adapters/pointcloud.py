@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 __all__ = [
     'DATATYPES',
     'cloud_dtype',
+    'cloud_view',
     'cloud_to_xyz',
     'cloud_to_structured',
     'points_to_structured',
@@ -203,6 +204,25 @@ def cloud_dtype(msg: Any) -> np.dtype:
     if point_step > _MAX_POINT_STEP:
         raise InvalidCloudError(f'cloud point_step {point_step} is beyond any real point')
     return _dtype(_field_specs(msg, point_step), point_step, _byteorder(msg))
+
+
+def cloud_view(msg: Any, names: tuple[str, ...] | None = None) -> np.ndarray:
+    """A (height, width) structured view of the cloud's bytes, without a copy.
+
+    Fields sit at their offsets in the message's byte order and precision, so assigning to a
+    field of some points (``view['x'][i, j] = 1.5``) writes exactly those bytes of
+    ``msg.data`` (converted to the field's type and byte order) and nothing else: padding,
+    other fields and other points keep their bytes. Writing needs ``msg.data`` to be a writable
+    buffer (a ``bytearray``, a writable numpy array); a read-only one gives a read-only view.
+
+    Args:
+        msg: A ``sensor_msgs/PointCloud2`` (rclpy or rosbags).
+        names: Only these fields (all must exist); ``None`` for all.
+
+    Raises:
+        InvalidCloudError: The cloud is malformed or lacks a field of ``names``.
+    """
+    return _view(msg, names)[0]
 
 
 def cloud_to_xyz(msg: Any) -> tuple[np.ndarray, int]:
