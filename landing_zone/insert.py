@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numba as nb
 import numpy as np
 
 from landing_zone.errors import BagError, ConfigError, SimulationError
@@ -76,37 +77,54 @@ _PLACE_TRIES = 2000  # candidate spots per obstacle before giving up
 
 # --- the array core ----------------------------------------------------------------------------
 
+@nb.njit(cache=True)
+def _meet_kernel(o: np.ndarray, p: np.ndarray, boxes: np.ndarray, out: np.ndarray) -> None:
+    """Slab test of every segment against the boxes until one is met (NaN: never)."""
+    for i in range(p.shape[0]):
+        for k in range(boxes.shape[0]):
+            t0, t1 = 0.0, 1.0
+            ok = True
+            for a in range(3):
+                start = o[i, a]
+                d = p[i, a] - start
+                lo, hi = boxes[k, 0, a], boxes[k, 1, a]
+                if d != d:
+                    ok = False
+                elif d == 0.0:  # parallel to the slab: inside it everywhere or nowhere
+                    ok = lo <= start <= hi
+                else:
+                    ta = (lo - start) / d
+                    tb = (hi - start) / d
+                    if ta > tb:
+                        ta, tb = tb, ta
+                    t0 = max(t0, ta)
+                    t1 = min(t1, tb)
+                    ok = t0 <= t1
+                if not ok:
+                    break
+            if ok:
+                out[i] = True
+                break
+
+
 def segments_meet_boxes(origins: np.ndarray, points: np.ndarray, boxes: np.ndarray
                         ) -> np.ndarray:
     """Which segments ``origin -> point`` meet at least one axis-aligned box (slab method).
 
     Args:
         origins: (N, 3) or (3,) segment starts.
-        points: (N, 3) segment ends.
+        points: (N, 3) segment ends (a segment with a NaN meets nothing).
         boxes: (K, 2, 3) lower and upper corners.
 
     Returns:
         (N,) bool.
     """
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    o = np.broadcast_to(np.asarray(origins, np.float64), p.shape)
-    d = p - o
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    o = np.ascontiguousarray(np.broadcast_to(np.asarray(origins, np.float64), p.shape))
     out = np.zeros(len(p), bool)
-    zero = d == 0.0
-    with np.errstate(divide='ignore', invalid='ignore'):
-        inv = 1.0 / d
-        for lo, hi in np.asarray(boxes, np.float64).reshape(-1, 2, 3):
-            t1 = (lo - o) * inv
-            t2 = (hi - o) * inv
-            near = np.minimum(t1, t2)
-            far = np.maximum(t1, t2)
-            # a segment parallel to a slab is inside it everywhere or nowhere
-            inside = (o >= lo) & (o <= hi)
-            near = np.where(zero, np.where(inside, -np.inf, np.inf), near)
-            far = np.where(zero, np.where(inside, np.inf, -np.inf), far)
-            t0 = np.maximum(near.max(axis=1), 0.0)
-            t1_ = np.minimum(far.min(axis=1), 1.0)
-            out |= t0 <= t1_
+    b = np.ascontiguousarray(boxes, np.float64).reshape(-1, 2, 3)
+    if len(p) and len(b):
+        _meet_kernel(o, p, b, out)
     return out
 
 
@@ -166,7 +184,14 @@ class ObstacleScene:
         if not len(self.boxes) or not len(p):
             return mask, np.zeros(0), np.zeros((0, 3))
         widened = self.boxes + np.array([-_BOX_MARGIN, _BOX_MARGIN])[None, :, None]
-        cand = np.flatnonzero(segments_meet_boxes(o, p, widened))
+        # Every segment lies in the bounding box of the rays' ends: most clouds of a flight
+        # see no obstacle at all and stop here.
+        lo = np.minimum(p.min(axis=0), o.min(axis=0))
+        hi = np.maximum(p.max(axis=0), o.max(axis=0))
+        near = np.all((widened[:, 0] <= hi) & (widened[:, 1] >= lo), axis=1)
+        if not near.any():
+            return mask, np.zeros(0), np.zeros((0, 3))
+        cand = np.flatnonzero(segments_meet_boxes(o, p, widened[near]))
         if not len(cand):
             return mask, np.zeros(0), np.zeros((0, 3))
         d = p[cand] - o[cand]
@@ -216,7 +241,11 @@ def alter_returns(points: np.ndarray, origins: np.ndarray,
         raise ConfigError('range noise needs a random generator (rng)')
     scene = obstacles if isinstance(obstacles, ObstacleScene) else ObstacleScene(obstacles)
     out = p.copy()
-    finite = np.isfinite(p).all(axis=1) & np.isfinite(np.broadcast_to(o, p.shape)).all(axis=1)
+    finite = np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]) & np.isfinite(p[:, 2])
+    if o.ndim == 2:
+        finite &= np.isfinite(o[:, 0]) & np.isfinite(o[:, 1]) & np.isfinite(o[:, 2])
+    elif not np.isfinite(o).all():
+        finite[:] = False
     idx = np.flatnonzero(finite)
     sub_o = o if o.ndim == 1 else o[idx]
     mask_f, t, d = scene.first_hits(p[idx], sub_o)
