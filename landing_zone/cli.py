@@ -347,12 +347,18 @@ def evaluate(
 @app.command(help='Labelled training/test patches of the paper\'s Table I sweep (synth1: boxes, '
                   'synth2: rocks, tires, cinder blocks in grass), written as shards a rerun '
                   'resumes. Same seed, same bytes, whatever the number of workers.\n\n'
+                  'hybrid: patches cut from recorded flights (--from, repeat for more; each with '
+                  'BAG.labels.json beside it or a --region of clear ground), half of them with an '
+                  'obstacle inserted by cutting short the rays that meet it; split by flight '
+                  '(--test-from, or the last --from).\n\n'
                   'Examples:\n\n  landing-zone simulate --dataset synth2 --out data/synth2\n\n'
                   '  landing-zone simulate --dataset synth1 --out data/s1 --scenes 2000 '
                   '--workers 2 --seed 1\n\n'
-                  '  landing-zone simulate --dataset synth2 --out data/s2test --split test')
+                  '  landing-zone simulate --dataset synth2 --out data/s2test --split test\n\n'
+                  '  landing-zone simulate --dataset hybrid --from a.mcap --from b.mcap '
+                  '--test-from c.mcap --out data/hybrid --patches 500')
 def simulate(
-    dataset: Annotated[DatasetName, typer.Option(help='Which sweep of Table I.')],
+    dataset: Annotated[DatasetName, typer.Option(help='Which sweep of Table I, or hybrid.')],
     out: Annotated[Path, typer.Option(help='Output directory (a rerun resumes).')],
     scenes: Annotated[Optional[int], typer.Option(
         help='Subsample the sweep evenly to this many scenes; default all.')] = None,
@@ -361,11 +367,37 @@ def simulate(
     seed: Annotated[int, typer.Option(help='Seed of the dataset.')] = 0,
     split: Annotated[str, typer.Option(help='train, test or both.')] = 'both',
     quiet: Annotated[bool, typer.Option(help='No progress bar.')] = False,
+    from_: Annotated[Optional[list[Path]], typer.Option(
+        '--from', help='hybrid: a flight bag to cut patches from (repeat for more).')] = None,
+    test_from: Annotated[Optional[list[Path]], typer.Option(
+        help='hybrid: a flight whose patches form the test split (repeat for more).')] = None,
+    patches: Annotated[int, typer.Option(help='hybrid: at most this many per flight.')] = 1000,
+    region: Annotated[Optional[tuple[float, float, float, float]], typer.Option(
+        help='hybrid: X0 Y0 X1 Y1, the clear area patches come from.')] = None,
+    points_topic: Annotated[str, typer.Option(
+        help='hybrid: PointCloud2 topic.')] = '/lidar/points',
+    pose_topic: Annotated[str, typer.Option(help='hybrid: PoseStamped topic.')] = '/lidar/pose',
 ) -> None:
-    from landing_zone.sim.dataset import simulate_dataset
+    from landing_zone.errors import ConfigError
 
-    s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
-                         split=split, progress=not quiet)
+    if dataset is DatasetName.hybrid:
+        from landing_zone.sim.hybrid import simulate_hybrid
+
+        if not from_ and not test_from:
+            raise ConfigError('--dataset hybrid needs the flights: --from BAG (repeat for more)')
+        if scenes is not None or split != 'both':
+            raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
+                              'flight: not --scenes or --split')
+        s = simulate_hybrid(from_ or [], out, test_flights=test_from or [], patches=patches,
+                            seed=seed, region=region, points_topic=points_topic,
+                            pose_topic=pose_topic, progress=not quiet)
+    else:
+        from landing_zone.sim.dataset import simulate_dataset
+
+        if from_ or test_from or region is not None:
+            raise ConfigError('--from, --test-from and --region are for --dataset hybrid')
+        s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
+                             split=split, progress=not quiet)
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s), {s["scenes_per_s"]:.1f} scenes/s; {s["bytes"] / 1e6:.1f} MB')

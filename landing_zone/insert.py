@@ -60,6 +60,7 @@ from landing_zone.sim.raycast import RayCaster
 
 __all__ = ['ObstacleScene', 'alter_returns', 'segments_meet_boxes', 'ground_height',
            'place_obstacles', 'insert_obstacles', 'InsertResult', 'DEFAULT_KINDS',
+           'FlightReturns', 'read_flight', 'read_labels', 'labels_path_for',
            'RANGE_SIGMA', 'SINK', 'MIN_SEPARATION']
 
 DEFAULT_KINDS = ('rock', 'tire', 'cinder_block', 'box')
@@ -569,6 +570,33 @@ def _label_field(view: np.ndarray) -> bool:
     return dt.shape == () and dt.kind in 'iu'
 
 
+def _cloud_xyz(msg: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A cloud's structured view, its finite returns (M, 3) float64 and their flat indices.
+
+    Raises:
+        InvalidCloudError: malformed, or x, y, z not FLOAT32 / FLOAT64 of count 1.
+    """
+    from landing_zone.errors import InvalidCloudError
+    from msg_adapters.pointcloud import cloud_view
+
+    view = cloud_view(msg)
+    names = view.dtype.names or ()
+    for name in ('x', 'y', 'z'):
+        if name not in names:
+            raise InvalidCloudError(f'cloud lacks field {name!r}')
+        dt = view.dtype.fields[name][0]
+        if dt.shape != () or dt.kind != 'f':
+            raise InvalidCloudError(f'cloud field {name!r} must be FLOAT32 or FLOAT64')
+    xyz = np.empty((*view.shape, 3))
+    with np.errstate(invalid='ignore'):  # signalling NaNs in garbage bytes
+        for k, name in enumerate(('x', 'y', 'z')):
+            xyz[..., k] = view[name]
+    xyz = xyz.reshape(-1, 3)
+    rows = np.flatnonzero(np.isfinite(xyz[:, 0]) & np.isfinite(xyz[:, 1])
+                          & np.isfinite(xyz[:, 2]))
+    return view, xyz[rows], rows
+
+
 def _alter_cloud(raw: bytes | memoryview, msg: Any, origin: np.ndarray, scene: ObstacleScene,
                  rng: np.random.Generator, range_sigma: float) -> tuple[bytes | None, int, int]:
     """The cloud's CDR bytes with its altered returns rewritten (None when none is).
@@ -578,20 +606,8 @@ def _alter_cloud(raw: bytes | memoryview, msg: Any, origin: np.ndarray, scene: O
     """
     from msg_adapters.pointcloud import cloud_view
 
-    view = cloud_view(msg, ('x', 'y', 'z'))
-    for name in ('x', 'y', 'z'):
-        dt = view.dtype.fields[name][0]
-        if dt.shape != () or dt.kind != 'f':
-            from landing_zone.errors import InvalidCloudError
-            raise InvalidCloudError(f'cloud field {name!r} must be FLOAT32 or FLOAT64')
-    h, w = view.shape
-    xyz = np.empty((h, w, 3))
-    with np.errstate(invalid='ignore'):
-        for k, name in enumerate(('x', 'y', 'z')):
-            xyz[..., k] = view[name]
-    xyz = xyz.reshape(-1, 3)
-    finite = np.flatnonzero(np.isfinite(xyz).all(axis=1))
-    new, mask = alter_returns(xyz[finite], origin, scene, rng, range_sigma)
+    view, xyz, finite = _cloud_xyz(msg)
+    new, mask = alter_returns(xyz, origin, scene, rng, range_sigma)
     if not mask.any():
         return None, len(finite), 0
     rows = finite[mask]
@@ -599,7 +615,7 @@ def _alter_cloud(raw: bytes | memoryview, msg: Any, origin: np.ndarray, scene: O
     off = _data_offset(raw, msg.data)
     data = np.frombuffer(out, np.uint8, count=len(msg.data), offset=off)
     full = cloud_view(dataclasses.replace(msg, data=data))
-    i, j = np.unravel_index(rows, (h, w))
+    i, j = np.unravel_index(rows, view.shape)
     for k, name in enumerate(('x', 'y', 'z')):
         full[name][i, j] = new[mask, k]
     if _label_field(full):
@@ -607,17 +623,60 @@ def _alter_cloud(raw: bytes | memoryview, msg: Any, origin: np.ndarray, scene: O
     return bytes(out), len(finite), int(mask.sum())
 
 
-def _read_flight(bag: Path, points_topic: str, pose_topic: str, frame_id: str,
-                 tolerance_s: float) -> tuple[Any, np.ndarray]:
-    """Pass 1: every pose into a buffer, every finite return of the clouds in the frame."""
+@dataclass
+class FlightReturns:
+    """Every finite return of a flight's clouds in the fixed frame, with its sensor origin.
+
+    Attributes:
+        points: (N, 3) float64 returns [m], in bag order.
+        cloud: (N,) int64 index of each return's cloud.
+        origins: (C, 3) float64 sensor origin of each cloud: the pose interpolated at its
+            header stamp; NaN where the poses do not reach its stamp.
+        stamps: (C,) int64 header stamps [ns].
+        labels: (N,) uint8 the clouds' integer ``label`` field (simulated flights: 0 ground,
+            1 grass, 2 obstacle); 255 where a cloud has none.
+        poses: every pose of the flight, for interpolation.
+    """
+
+    points: np.ndarray
+    cloud: np.ndarray
+    origins: np.ndarray
+    stamps: np.ndarray
+    labels: np.ndarray
+    poses: Any = field(repr=False, default=None)
+
+    def ray_origins(self, index: np.ndarray | None = None) -> np.ndarray:
+        """(N, 3) origin of each return (of ``index``)."""
+        cloud = self.cloud if index is None else self.cloud[index]
+        return self.origins[cloud]
+
+
+def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points',
+                pose_topic: str = '/lidar/pose', frame_id: str = 'map') -> FlightReturns:
+    """All returns of a flight with their sensor origins, as the node would integrate them.
+
+    Poses and clouds are decoded as the stream decodes them
+    (:func:`~landing_zone.stream.read_pose_msg`, :func:`~landing_zone.stream.read_cloud_header`);
+    a cloud's origin is the pose interpolated at its header stamp by a
+    :class:`~landing_zone.poses.PoseBuffer` holding every pose, with the stream's tolerance
+    (``StreamConfig.pose_tolerance``) at both ends. Clouds and poses in other frames are left
+    out, as are malformed ones.
+
+    Raises:
+        BagError: unreadable bag, missing topics, no pose or no cloud in the frame.
+    """
     from landing_zone.bagio import RawBag
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
     from landing_zone.poses import PoseBuffer
-    from landing_zone.stream import read_cloud_header, read_pose_msg
-    from msg_adapters.pointcloud import cloud_to_xyz
+    from landing_zone.replay import check_bag_topics
+    from landing_zone.stream import StreamConfig, read_cloud_header, read_pose_msg
 
-    poses = PoseBuffer(max_age_s=1e9, max_len=2**62, tolerance_s=tolerance_s)
+    bag = Path(bag)
+    check_bag_topics(bag, points_topic, pose_topic)
+    poses = PoseBuffer(max_age_s=1e9, max_len=2**62, tolerance_s=StreamConfig().pose_tolerance)
     chunks: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    stamps: list[int] = []
     with RawBag(bag) as src:
         for m in src.messages([points_topic, pose_topic]):
             msg = src.deserialize(m)
@@ -630,19 +689,33 @@ def _read_flight(bag: Path, points_topic: str, pose_topic: str, frame_id: str,
                     poses.add(stamp, position, quaternion)
                 continue
             try:
-                frame, _ = read_cloud_header(msg)
+                frame, stamp = read_cloud_header(msg)
                 if frame != frame_id:
                     continue
-                xyz, _ = cloud_to_xyz(msg)
+                view, xyz, rows = _cloud_xyz(msg)
             except InvalidCloudError:
                 continue
-            chunks.append(xyz.astype(np.float32))
+            chunks.append(xyz)
+            stamps.append(stamp)
+            if _label_field(view):
+                labels.append(np.clip(view['label'].reshape(-1)[rows], 0, 255).astype(np.uint8))
+            else:
+                labels.append(np.full(len(rows), 255, np.uint8))
     if not len(poses):
         raise BagError(f'{bag}: no pose in frame {frame_id!r} on {pose_topic}: the sensor '
                        'origins of the returns are unknown')
     if not chunks:
         raise BagError(f'{bag}: no cloud in frame {frame_id!r} on {points_topic}')
-    return poses, np.concatenate(chunks)
+    origins = np.full((len(stamps), 3), np.nan)
+    for c, stamp in enumerate(stamps):
+        try:
+            origins[c] = poses.lookup(stamp)[0]
+        except InvalidPoseError:
+            pass
+    sizes = [len(c) for c in chunks]
+    return FlightReturns(np.concatenate(chunks),
+                         np.repeat(np.arange(len(chunks), dtype=np.int64), sizes),
+                         origins, np.array(stamps, np.int64), np.concatenate(labels), poses)
 
 
 def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *,
@@ -684,8 +757,7 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     """
     from landing_zone.bagio import BagWriter, RawBag
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
-    from landing_zone.replay import check_bag_topics
-    from landing_zone.stream import StreamConfig, read_cloud_header
+    from landing_zone.stream import read_cloud_header
 
     t_start = time.perf_counter()
     bag, out = Path(bag), Path(out)
@@ -710,12 +782,11 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     if labels is not None and not labels_in.exists():
         raise ConfigError(f'labels file not found: {labels_in}')
     doc = read_labels(labels_in) if labels_in.exists() else None
-    check_bag_topics(bag, points_topic, pose_topic)
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    tolerance = StreamConfig().pose_tolerance
-    poses, points = _read_flight(bag, points_topic, pose_topic, frame_id, tolerance)
+    flight = read_flight(bag, points_topic, pose_topic, frame_id)
+    poses, points = flight.poses, flight.points
     timings['read'] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -18,7 +18,7 @@ import pytest
 from landing_zone import cli
 from landing_zone.bagio import BagWriter, RawBag
 from landing_zone.insert import (ObstacleScene, alter_returns, ground_height, insert_obstacles,
-                                 segments_meet_boxes)
+                                 read_flight, segments_meet_boxes)
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.obstacles import Obstacle, get_model
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
@@ -76,9 +76,7 @@ def site(tmp_path_factory):
 
 
 def _box_on_ground(bag, x, y, sink=0.025):
-    from landing_zone.insert import _read_flight
-    _, pts = _read_flight(bag, '/lidar/points', '/lidar/pose', 'map', 0.05)
-    g = ground_height(pts, x, y, 0.5)
+    g = ground_height(read_flight(bag).points, x, y, 0.5)
     return Obstacle(BOX, x, y, g - sink, 0.0)
 
 

@@ -5,6 +5,7 @@ is parsed here with argparse and imports nothing else (``landing-zone simulate``
 command behind the project's typer CLI)::
 
     python -m landing_zone.sim simulate --dataset synth2 --out data/synth2 --workers 16
+    python -m landing_zone.sim simulate --dataset hybrid --from a.mcap b.mcap --out data/hybrid
     python -m landing_zone.sim simulate-flight --out site.mcap        (needs rosbags)
     python -m landing_zone.sim simulate-flight --out v.mcap --vegetation clumped \
         --scan-pattern spinning
@@ -26,13 +27,22 @@ def _parser() -> argparse.ArgumentParser:
                                 description='LiDAR simulator: datasets, flights, pictures.')
     sub = p.add_subparsers(dest='command', required=True)
     s = sub.add_parser('simulate', help="labelled patches of the paper's Table I sweep")
-    s.add_argument('--dataset', required=True, choices=('synth1', 'synth2'))
+    s.add_argument('--dataset', required=True, choices=('synth1', 'synth2', 'hybrid'))
     s.add_argument('--out', required=True, help='output directory (a rerun resumes)')
     s.add_argument('--scenes', type=int, default=None, help='subsample the sweep evenly')
     s.add_argument('--workers', type=int, default=None, help='processes (default: all cores)')
     s.add_argument('--seed', type=int, default=0)
     s.add_argument('--split', default='both', choices=('train', 'test', 'both'))
     s.add_argument('--quiet', action='store_true', help='no progress bar')
+    s.add_argument('--from', dest='from_', nargs='+', action='extend', default=[],
+                   metavar='BAG', help='hybrid: flights to cut patches from (needs rosbags)')
+    s.add_argument('--test-from', nargs='+', action='extend', default=[], metavar='BAG',
+                   help='hybrid: flights whose patches form the test split')
+    s.add_argument('--patches', type=int, default=1000, help='hybrid: at most per flight')
+    s.add_argument('--region', type=float, nargs=4, default=None,
+                   metavar=('X0', 'Y0', 'X1', 'Y1'), help='hybrid: the clear area')
+    s.add_argument('--points-topic', default='/lidar/points')
+    s.add_argument('--pose-topic', default='/lidar/pose')
     f = sub.add_parser('simulate-flight', help='a flight over a site as a ROS 2 bag')
     f.add_argument('--out', required=True, help='SITE.mcap (labels go to SITE.labels.json)')
     f.add_argument('--size', type=float, default=20.0)
@@ -67,7 +77,16 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        if args.command == 'simulate':
+        if args.command == 'simulate' and args.dataset == 'hybrid':
+            from landing_zone.sim.hybrid import simulate_hybrid
+            if not args.from_ and not args.test_from:
+                raise LandingZoneError('--dataset hybrid needs the flights: --from BAG [BAG ...]')
+            summary = simulate_hybrid(args.from_, args.out, test_flights=args.test_from,
+                                      patches=args.patches, seed=args.seed, region=args.region,
+                                      points_topic=args.points_topic,
+                                      pose_topic=args.pose_topic, progress=not args.quiet)
+            print(json.dumps(summary, indent=1))
+        elif args.command == 'simulate':
             from landing_zone.sim.dataset import simulate_dataset
             summary = simulate_dataset(args.dataset, args.out, scenes=args.scenes,
                                        workers=args.workers, seed=args.seed, split=args.split,
