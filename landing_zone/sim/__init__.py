@@ -11,6 +11,7 @@ One concept per module, in the order the data flows:
 ``sensor``         the scanner: scan lines, nodding, noise, hover and path scans
 ``scene``          worlds and simulated patches (one dataset scene)
 ``dataset``        the paper's Table I sweeps as sharded datasets; ``SceneDataset``
+``hybrid``         patches cut from recorded flights, obstacles inserted (same format)
 ``flight``         a flight over a site, written as a ROS 2 bag with ground truth
 ``render``         pictures of patches and flights (returns coloured by what they hit)
 =================  ============================================================================

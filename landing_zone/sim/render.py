@@ -162,11 +162,16 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
         ob = p['obstacle']
         placed = Obstacle(get_model(ob['model']), ob['x'], ob['y'], ob['z'], ob['yaw'])
         polygons.append((placed.footprint(), CLASS_COLOURS[OBSTACLE]))
+    if p.get('dataset') == 'hybrid':  # cut from a recorded flight
+        where = f"tile ({p['tile'][0]:g}, {p['tile'][1]:g}) of {p.get('flight')}" + (
+            f", {p.get('altered', 0)} returns moved onto the obstacle" if p.get('obstacle')
+            else '')
+    else:
+        where = (f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor "
+                 f"at x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up")
     title = (f"{p.get('dataset')} scene {p.get('index')} ({p.get('split')}): "
              f"{'unsafe, ' + p['obstacle']['model'] if p.get('obstacle') else 'safe'}; "
-             f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor at "
-             f"x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up, "
-             f"{len(scene.points):,} returns")
+             f"{where}, {len(scene.points):,} returns")
     # The column and a little around it: far returns of rays that passed above the tile are
     # kept in the data but would shrink the tile to a dot.
     near = np.all(np.abs(scene.points[:, :2]) < 1.5, axis=1)
