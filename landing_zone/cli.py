@@ -220,9 +220,12 @@ class Device(str, Enum):
                   '  landing-zone train --data data/synth2 --out m.safetensors --device cuda '
                   '--workers 15 --cache-voxels 20\n\n'
                   '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
-                  '--out site.safetensors --lr 0.001 --epochs 3  (site adaptation)')
+                  '--data synth2_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
+                  'adaptation)')
 def train(
-    data: Annotated[Path, typer.Option(help='Dataset directory (landing-zone simulate).')],
+    data: Annotated[list[Path], typer.Option(
+        help='Dataset directory (landing-zone simulate); repeat to train on the train splits '
+             'of several, e.g. a hybrid set and some synth2 when fine-tuning.')],
     out: Annotated[Path, typer.Option(help='Model file to write (.safetensors).')],
     arch: Annotated[Optional[str], typer.Option(
         help='Network spec; default the --init model\'s, else the shipped model\'s '

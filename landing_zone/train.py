@@ -519,12 +519,39 @@ class _Data:
     val_labels: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
 
 
+class ConcatScenes:
+    """Several scene sources as one (``len``, ``[i] -> Scene``, ``labels``), in order: e.g. a
+    site's hybrid set with some synth2 scenes, so fine-tuning does not forget what it knew."""
+
+    def __init__(self, sources: Sequence[Any]) -> None:
+        self.sources = list(sources)
+        self.labels = np.concatenate([_labels_of(s) for s in self.sources]) \
+            if self.sources else np.zeros(0, np.int64)
+        self._ends = np.cumsum([len(s) for s in self.sources])
+
+    def __len__(self) -> int:
+        return int(self._ends[-1]) if len(self._ends) else 0
+
+    def __getitem__(self, i: int) -> Any:
+        if not 0 <= i < len(self):
+            raise IndexError(f'scene {i} out of range ({len(self)} scenes)')
+        k = int(np.searchsorted(self._ends, i, side='right'))
+        return self.sources[k][i - (int(self._ends[k - 1]) if k else 0)]
+
+
 def _open_source(data: Any) -> tuple[Any, str]:
     if isinstance(data, (str, os.PathLike)):
         from landing_zone.sim.dataset import SceneDataset
         return SceneDataset(data, 'train'), str(data)
+    if isinstance(data, (list, tuple)) and data and all(
+            isinstance(d, (str, os.PathLike)) for d in data):
+        if len(data) == 1:
+            return _open_source(data[0])
+        opened = [_open_source(d) for d in data]
+        return ConcatScenes([o[0] for o in opened]), ' + '.join(o[1] for o in opened)
     if not hasattr(data, '__len__') or not hasattr(data, '__getitem__'):
-        raise DatasetError('data must be a dataset directory or a sequence of scenes')
+        raise DatasetError('data must be a dataset directory (or a list of them) or a sequence '
+                           'of scenes')
     return data, type(data).__name__
 
 
@@ -558,7 +585,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     """Train a net and write it (calibrated) to ``out``.
 
     Args:
-        data: a dataset directory (its train split is used) or a sequence of scenes.
+        data: a dataset directory (its train split is used), a list of them (their train
+            splits one after the other, see :class:`ConcatScenes`) or a sequence of scenes.
         out: the model file to write (``.safetensors``); the training state and the CSV log go
             beside it (:func:`state_path`, :func:`log_path`).
         config: training parameters; default :class:`TrainConfig()`.
@@ -802,7 +830,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog='python -m landing_zone.train',
         description='Train the safety CNN (same options as `landing-zone train`).')
-    parser.add_argument('--data', required=True, help='dataset directory')
+    parser.add_argument('--data', required=True, nargs='+', help='dataset directories')
     parser.add_argument('--out', required=True, help='model file to write (.safetensors)')
     parser.add_argument('--resume', action='store_true', help='continue from OUT.train')
     parser.add_argument('--init', default=None, help='start from this model (same spec)')

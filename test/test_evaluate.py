@@ -196,9 +196,13 @@ def test_cli_trains_and_evaluates_a_simulated_dataset(tmp_path):
         return subprocess.run([sys.executable, '-m', 'landing_zone', *args],
                               capture_output=True, text=True, timeout=300)
 
-    r = cli('train', '--data', str(data), '--arch', 'C5-F8-P4-D16', '--out', str(model),
-            '--epochs', '1', '--augment-copies', '1', '--val-fraction', '0.2')
+    r = cli('train', '--data', str(data), '--data', str(data), '--arch', 'C5-F8-P4-D16',
+            '--out', str(model), '--epochs', '1', '--augment-copies', '1', '--val-fraction',
+            '0.2')
     assert r.returncode == 0, r.stderr
+    from landing_zone.model import read_metadata
+    assert read_metadata(model)['n_train_scenes'] + read_metadata(model)['n_val_scenes'] \
+        == 2 * 25  # the train split (25 of 30 scenes) twice
     assert 'wrote' in r.stdout and model.exists()
     r = cli('evaluate', '--data', str(data), '--model', str(model), '--model',
             str(model), '--json', str(tmp_path / 'r.json'))

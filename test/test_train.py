@@ -217,6 +217,16 @@ def test_edge_drop_cuts_only_the_context():
     assert np.all(x_cut[inner, inner] >= x_full[inner, inner] - 1e-6)
 
 
+def test_concatenated_sources_index_through():
+    from landing_zone.train import ConcatScenes
+    a, b = toy_scenes(3, seed=1), toy_scenes(4, seed=2)
+    both = ConcatScenes([a, b])
+    assert len(both) == 7 and both.labels.tolist() == [0, 1, 0, 0, 1, 0, 1]
+    assert both[2] is a[2] and both[3] is b[0] and both[6] is b[3]
+    with pytest.raises(IndexError):
+        both[7]
+
+
 def test_epoch_sampler_orders_and_caps():
     s = EpochSampler(np.array([10, 11, 12]), copies=2, seed=0)
     s.set_epoch(0)
