@@ -420,6 +420,32 @@ def _write_json(path: Path, obj: Any) -> None:
     os.replace(tmp, path)
 
 
+def prepare_output(out: Path, meta: dict[str, Any], plan_key: Any) -> None:
+    """Start or resume a dataset directory: refuse one that holds another plan (``plan_key``
+    of the metadata differs), drop half-written shards, write ``meta`` marked incomplete.
+
+    Raises:
+        DatasetError: ``out`` holds another dataset, or its meta.json is unreadable.
+    """
+    meta_path = out / 'meta.json'
+    if meta_path.exists():
+        try:
+            old = json.loads(meta_path.read_text(encoding='utf-8'))
+        except (OSError, ValueError) as err:
+            raise DatasetError(f'{meta_path} is unreadable: {err}') from err
+        if plan_key(old) != plan_key(meta):
+            split = f', split {old["split"]}' if 'split' in old else ''
+            raise DatasetError(
+                f'{out} already holds another dataset ({old.get("dataset")}, seed '
+                f'{old.get("seed")}, {old.get("n_scenes")} scenes{split}); choose another '
+                '--out or remove it')
+    (out / 'shards').mkdir(parents=True, exist_ok=True)
+    for stale in (out / 'shards').glob('*.tmp-*'):
+        stale.unlink()  # a shard an interrupted run was writing
+    meta['complete'] = False
+    _write_json(meta_path, meta)
+
+
 def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = None,
                      workers: int | None = None, seed: int = 0, split: str = 'both',
                      shard_size: int = 32, progress: bool = True) -> dict[str, Any]:
@@ -456,21 +482,7 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
     out = Path(out)
     meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
     meta_path = out / 'meta.json'
-    if meta_path.exists():
-        try:
-            old = json.loads(meta_path.read_text(encoding='utf-8'))
-        except (OSError, ValueError) as err:
-            raise DatasetError(f'{meta_path} is unreadable: {err}') from err
-        if _plan_key(old) != _plan_key(meta):
-            raise DatasetError(
-                f'{out} already holds another dataset ({old.get("dataset")}, seed '
-                f'{old.get("seed")}, {old.get("n_scenes")} scenes, split {old.get("split")}); '
-                'choose another --out or remove it')
-    (out / 'shards').mkdir(parents=True, exist_ok=True)
-    for stale in (out / 'shards').glob('*.tmp-*'):
-        stale.unlink()  # a shard an interrupted run was writing
-    meta['complete'] = False
-    _write_json(meta_path, meta)
+    prepare_output(out, meta, _plan_key)
 
     tasks, done = [], 0
     for k, shard in enumerate(meta['shards']):

@@ -385,13 +385,11 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
         BagError: a bag is unreadable or lacks poses or clouds.
         DatasetError: ``out`` holds another dataset, or no flight gave a patch.
     """
-    import json
-
     from scipy.spatial import cKDTree
 
     from landing_zone.insert import read_flight
     from landing_zone.sim.dataset import (_Progress, _shard_arrays, _shard_complete, _shard_name,
-                                          _write_json, _write_npz)
+                                          _write_json, _write_npz, prepare_output)
 
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]
@@ -451,20 +449,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
                            f'(each needs {MIN_PATCH_RETURNS} returns and scanned neighbours)')
     meta = _hybrid_meta(flights_meta, shards, args, split_by, scene, counts)
     meta_path = out / 'meta.json'
-    if meta_path.exists():
-        try:
-            old = json.loads(meta_path.read_text(encoding='utf-8'))
-        except (OSError, ValueError) as err:
-            raise DatasetError(f'{meta_path} is unreadable: {err}') from err
-        if _plan_key(old) != _plan_key(meta):
-            raise DatasetError(f'{out} already holds another dataset ({old.get("dataset")}, '
-                               f'seed {old.get("seed")}, {old.get("n_scenes")} scenes); choose '
-                               'another --out or remove it')
-    (out / 'shards').mkdir(parents=True, exist_ok=True)
-    for stale in (out / 'shards').glob('*.tmp-*'):
-        stale.unlink()
-    meta['complete'] = False
-    _write_json(meta_path, meta)
+    prepare_output(out, meta, _plan_key)
 
     done = generated = 0
     bar = _Progress(scene, 0, progress, f'hybrid -> {out}')
