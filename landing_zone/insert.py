@@ -78,32 +78,40 @@ _PLACE_TRIES = 2000  # candidate spots per obstacle before giving up
 
 # --- the array core ----------------------------------------------------------------------------
 
+@nb.njit(cache=True, inline='always')
+def segment_meets_box(o: np.ndarray, i: int, p: np.ndarray, j: int, boxes: np.ndarray,
+                      k: int) -> bool:
+    """Whether the segment ``o[i] -> p[j]`` meets the axis-aligned box ``boxes[k]`` (slab
+    method; a NaN coordinate meets nothing). Inlined into the compiled loops that call it, so
+    the arrays are indexed in place rather than passed per call."""
+    t0, t1 = 0.0, 1.0
+    for a in range(3):
+        start = o[i, a]
+        d = p[j, a] - start
+        lo, hi = boxes[k, 0, a], boxes[k, 1, a]
+        if d != d:
+            return False
+        if d == 0.0:  # parallel to the slab: inside it everywhere or nowhere
+            if not lo <= start <= hi:
+                return False
+        else:
+            ta = (lo - start) / d
+            tb = (hi - start) / d
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+            if t0 > t1:
+                return False
+    return True
+
+
 @nb.njit(cache=True)
 def _meet_kernel(o: np.ndarray, p: np.ndarray, boxes: np.ndarray, out: np.ndarray) -> None:
-    """Slab test of every segment against the boxes until one is met (NaN: never)."""
+    """Slab test of every segment against the boxes until one is met."""
     for i in range(p.shape[0]):
         for k in range(boxes.shape[0]):
-            t0, t1 = 0.0, 1.0
-            ok = True
-            for a in range(3):
-                start = o[i, a]
-                d = p[i, a] - start
-                lo, hi = boxes[k, 0, a], boxes[k, 1, a]
-                if d != d:
-                    ok = False
-                elif d == 0.0:  # parallel to the slab: inside it everywhere or nowhere
-                    ok = lo <= start <= hi
-                else:
-                    ta = (lo - start) / d
-                    tb = (hi - start) / d
-                    if ta > tb:
-                        ta, tb = tb, ta
-                    t0 = max(t0, ta)
-                    t1 = min(t1, tb)
-                    ok = t0 <= t1
-                if not ok:
-                    break
-            if ok:
+            if segment_meets_box(o, i, p, i, boxes, k):
                 out[i] = True
                 break
 

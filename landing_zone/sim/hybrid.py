@@ -57,6 +57,7 @@ import numba as nb
 import numpy as np
 
 from landing_zone.errors import ConfigError, DatasetError, SimulationError
+from landing_zone.insert import segment_meets_box
 
 __all__ = ['simulate_hybrid', 'plan_flight', 'column_rays', 'MIN_PATCH_RETURNS']
 
@@ -107,23 +108,7 @@ def _column_pass(o: np.ndarray, p: np.ndarray, cloud: np.ndarray, boxes: np.ndar
                 q = pid[kx, ky]
                 if q < 0:
                     continue
-                t0, t1 = 0.0, 1.0
-                ok = True
-                for a in range(3):
-                    start = o[c, a]
-                    d = p[i, a] - start
-                    lo, hi = boxes[q, 0, a], boxes[q, 1, a]
-                    if d == 0.0:
-                        ok = lo <= start <= hi
-                    else:
-                        u, v = (lo - start) / d, (hi - start) / d
-                        if u > v:
-                            u, v = v, u
-                        t0, t1 = max(t0, u), min(t1, v)
-                        ok = t0 <= t1
-                    if not ok:
-                        break
-                if ok:
+                if segment_meets_box(o, c, p, i, boxes, q):
                     if fill:
                         out[offsets[q] + counts[q]] = i
                     counts[q] += 1
