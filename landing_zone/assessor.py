@@ -173,7 +173,7 @@ class Assessment:
         return None
 
     def to_report(self, stats: dict[str, Any] | None = None) -> dict[str, Any]:
-        """The REPORT.json document (../shared/CONTRACT.md §3).
+        """The REPORT.json document (docs/INTERFACES.md §3).
 
         Args:
             stats: the front end's counters (clouds, points, dropped_points, seconds, ...).
@@ -229,7 +229,7 @@ class _TileState:
 
 
 class Assessor:
-    """Integrate clouds, judge tiles, find landing sites (../shared/CONTRACT.md §4).
+    """Integrate clouds, judge tiles, find landing sites (docs/INTERFACES.md §4).
 
     Examples:
         >>> a = Assessor()                          # follow mode, the shipped model

@@ -123,7 +123,7 @@ class SiteConfig:
 
 @dataclass
 class AssessorConfig:
-    """The whole pipeline; the defaults are those of the node (../shared/CONTRACT.md §1)."""
+    """The whole pipeline; the defaults are those of the node (docs/INTERFACES.md §1)."""
 
     frame_id: str = 'map'  # fixed frame of clouds, poses and outputs
     # None: the map follows the sensor (scrolling). (x, y): a fixed region of interest.

@@ -59,7 +59,7 @@ def label_scores(assessment: Assessment, labels: dict[str, Any]
 
     Args:
         assessment: the final state of the tiles.
-        labels: a SITE.labels.json document (../shared/CONTRACT.md §3).
+        labels: a SITE.labels.json document (docs/INTERFACES.md §3).
 
     Returns:
         ``(auc, judged_fraction, n_judged)``: AUC with 'safe' as the positive class (None when

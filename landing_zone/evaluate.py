@@ -155,7 +155,7 @@ def markdown_table(results: list[MethodResult], dataset: str, split: str, n: int
 
 def results_json(results: list[MethodResult], dataset: str, split: str, n: int,
                  n_unsafe: int) -> dict[str, Any]:
-    """RESULTS.json of CONTRACT.md section 3."""
+    """RESULTS.json of docs/INTERFACES.md §3."""
     def num(v: float | None, digits: int) -> float | None:
         return None if v is None or not math.isfinite(v) else round(float(v), digits)
 
@@ -402,7 +402,7 @@ def evaluate(data: str | os.PathLike,
             baselines are asked for and none is shipped).
         baselines: also evaluate :func:`landing_zone.baselines.make_baselines`, fitted on up to
             ``fit_scenes`` scenes of the train split.
-        json_path: write RESULTS.json (CONTRACT.md section 3) here.
+        json_path: write RESULTS.json (docs/INTERFACES.md §3) here.
         out_dir: write table.md, the plots and the look inside here.
         split: 'test' (obstacle models never seen in training) or 'train'.
         workers: processes re-voxelizing scenes.

@@ -32,7 +32,7 @@ The pieces:
 Obstacles stand on the estimated ground, sunk by ``SINK`` (and by the model's own embedding, as
 the simulator places them), so no ray slips under them; they keep ``MIN_SEPARATION`` between
 centres (also from obstacles the labels file lists). The ground truth goes to
-``OUT.labels.json`` (../shared/CONTRACT.md section 3): the input's labels (``BAG.labels.json``
+``OUT.labels.json`` (docs/INTERFACES.md section 3): the input's labels (``BAG.labels.json``
 beside the bag, or ``labels``) or, without them, every tile holding at least ``MIN_TILE_RETURNS``
 returns as safe; then every tile an inserted footprint overlaps is unsafe, and the inserted
 obstacles join the list with ``"inserted": true``.
@@ -501,7 +501,7 @@ def _tile_key(x: float, y: float, ts: float) -> tuple[int, int]:
 def update_labels(labels: dict[str, Any] | None, obstacles: Sequence[Obstacle],
                   points: np.ndarray, frame_id: str, extra: dict[str, Any] | None = None
                   ) -> dict[str, Any]:
-    """The ground truth after the insertion (CONTRACT.md section 3).
+    """The ground truth after the insertion (docs/INTERFACES.md §3).
 
     Args:
         labels: the flight's labels, or None: every tile holding ``MIN_TILE_RETURNS`` returns

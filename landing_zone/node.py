@@ -1,6 +1,6 @@
 """The ROS 2 front end: the ``assessor`` node (``ros2 run landing_zone assessor``).
 
-Topics (../shared/CONTRACT.md §1): registered clouds on ``points`` and the sensor pose on
+Topics (docs/INTERFACES.md §1): registered clouds on ``points`` and the sensor pose on
 ``sensor_pose`` in (sensor-data QoS); ``~/safety_grid``, ``~/safety_cloud``, ``~/landing_sites``,
 ``~/markers`` out (reliable, transient local, depth 1, so a planner that joins late gets the
 latest), and ``/diagnostics``.

@@ -5,7 +5,7 @@ Stream` and :class:`~landing_zone.assessor.Assessor` the node uses. Each assessm
 into the output bag at the stamp of the newest cloud it includes (the moment the node would
 have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/safety_cloud``,
 ``/assessor/landing_sites``, ``/assessor/markers``, ``/diagnostics``); the final state goes to
-REPORT.json (../shared/CONTRACT.md §3) and, optionally, a PNG of the safety map over a top view
+REPORT.json (docs/INTERFACES.md §3) and, optionally, a PNG of the safety map over a top view
 of the returns.
 
 Everything is deterministic except the wall-time figures (``stats.seconds`` and the rates and

@@ -53,7 +53,7 @@ class LandingSite:
     index: tuple[int, int]
 
     def to_dict(self) -> dict[str, float]:
-        """The report's form (../shared/CONTRACT.md §3), plus z and confidence."""
+        """The report's form (docs/INTERFACES.md §3), plus z and confidence."""
         return {'x': self.x, 'y': self.y, 'z': None if math.isnan(self.z) else self.z,
                 'p_safe': self.p_safe, 'confidence': self.confidence}
 

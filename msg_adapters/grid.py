@@ -1,4 +1,4 @@
-"""An assessment -> the node's output messages (../shared/CONTRACT.md §1).
+"""An assessment -> the node's output messages (docs/INTERFACES.md §1).
 
 Every builder takes a :class:`~msg_adapters.MessageTypes` (or ``'rclpy'`` / ``'rosbags'`` / a
 rosbags typestore), so the node publishes rclpy messages and replay writes rosbags messages of

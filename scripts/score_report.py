@@ -1,4 +1,4 @@
-"""Score a replay REPORT.json against a SITE.labels.json (../shared/CONTRACT.md section 3).
+"""Score a replay REPORT.json against a SITE.labels.json (docs/INTERFACES.md section 3).
 
 Prints the per-tile AUC of P(safe) over the judged labelled tiles, the unknown tiles, and the
 tiles judged wrongly at a threshold: unsafe judged safe (the dangerous error) and safe judged

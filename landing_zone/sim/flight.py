@@ -10,7 +10,7 @@ speed is chosen so that the passes together put the target density onto the site
 ground the density is inversely proportional to the speed; the constant follows from the scan
 geometry, see :func:`_density_constant`), up to ``max_speed``.
 
-Outputs (``../shared/CONTRACT.md``):
+Outputs (``docs/INTERFACES.md``):
 
 * ``SITE.mcap``: ``/lidar/points`` (sensor_msgs/PointCloud2, frame ``map``, a few scan lines
   per message, FLOAT32 ``x``, ``y``, ``z``, ``intensity``, plus UINT8 ``label``, the class of

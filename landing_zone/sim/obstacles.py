@@ -122,7 +122,7 @@ class Obstacle:
         return xy[ConvexHull(xy).vertices]
 
     def to_json(self) -> dict:
-        """The record of CONTRACT.md section 3 (plus the model's name)."""
+        """The record of docs/INTERFACES.md §3 (plus the model's name)."""
         return {'kind': self.model.kind, 'model': self.model.name,
                 'x': round(self.x, 4), 'y': round(self.y, 4), 'z': round(self.z, 4),
                 'yaw': round(self.yaw, 4), 'size': [round(v, 4) for v in self.model.size]}
