@@ -102,3 +102,41 @@ def test_pip_wheel_install_puts_scripts_on_path(source, tmp_path):
                'import main' in path.read_text()
     assert (prefix / 'share' / 'landing_zone' / 'config' / 'assessor.yaml').is_file()
     assert (prefix / 'share' / 'landing_zone' / 'models' / 'landing_zone.safetensors').is_file()
+
+
+def _requirement_names(lines) -> dict[str, str]:
+    """name -> the whole requirement line, for requirement lines (comments and blanks skipped)."""
+    import re
+    out = {}
+    for line in lines:
+        line = line.split('#', 1)[0].strip()
+        if line:
+            out[re.split(r'[<>=!~;\[ ]', line, maxsplit=1)[0].lower()] = line
+    return out
+
+
+def test_robot_install_is_setup_py_minus_rosdep_keys():
+    """The robot's pip line installs exactly the dependencies package.xml's rosdep keys leave
+    out, in setup.py's own ranges: no ROS wheels, no torch pin, nothing forgotten."""
+    import ast
+    import xml.etree.ElementTree as ET
+    tree = ast.parse((ROOT / 'setup.py').read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                and getattr(n.func, 'id', '') == 'setup')
+    kw = {k.arg: k.value for k in call.keywords}
+    install = _requirement_names(ast.literal_eval(kw['install_requires']))
+    robot = _requirement_names((ROOT / 'requirements-robot.txt').read_text().splitlines())
+    keys = {d.text for d in ET.parse(ROOT / 'package.xml').getroot().iter('exec_depend')}
+    # rosdep key -> the pip name it provides
+    by_rosdep = {'python3-numpy': 'numpy', 'python3-scipy': 'scipy',
+                 'python3-sklearn': 'scikit-learn', 'python3-matplotlib': 'matplotlib',
+                 'python3-yaml': 'pyyaml', 'python3-tqdm': 'tqdm',
+                 'python3-trimesh-pip': 'trimesh'}
+    python_keys = {k for k in keys if k.startswith('python3-')}
+    assert python_keys == set(by_rosdep), 'a python3-* key of package.xml without its pip name'
+    assert set(robot) == set(install) - set(by_rosdep.values())
+    for name, line in robot.items():
+        assert line == install[name], f'{name}: robot and setup.py ranges differ'
+    assert not any(n.startswith('ros-') for n in robot) and '==' not in ''.join(robot.values())
+    assert _requirement_names((ROOT / 'requirements.txt').read_text().splitlines())['torch'] \
+        == 'torch==2.13.0', 'the development pins keep the local CPU wheel'
