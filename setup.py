@@ -51,7 +51,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'assessor = landing_zone.node:main',
+            'assessor = landing_zone.frontends.node:main',
             'landing-zone = landing_zone.cli:main',
         ],
     },

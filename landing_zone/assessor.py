@@ -20,7 +20,7 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
    tile area))`` (saturating once the tile holds a few hundred returns per square metre).
-5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.sites`).
+5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.judging.sites`).
 
 Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
 this). The map is guarded by a lock held only while rays are integrated or counts are read; the
@@ -43,10 +43,10 @@ import numpy as np
 
 from landing_zone.config import AssessorConfig
 from landing_zone.errors import InvalidCloudError, ModelError
-from landing_zone.sites import LandingSite, find_sites
+from landing_zone.judging.sites import LandingSite, find_sites
 
 if TYPE_CHECKING:
-    from landing_zone.density_map import IntegrationStats
+    from landing_zone.mapping.density_map import IntegrationStats
 
 __all__ = ['Assessor', 'Assessment', 'default_model_path', 'tile_confidence',
            'MODEL_FILENAME']
@@ -239,7 +239,7 @@ class Assessor:
 
     Attributes:
         config: the resolved configuration (``center`` set in fixed mode).
-        map: the :class:`~landing_zone.density_map.DensityMap`.
+        map: the :class:`~landing_zone.mapping.density_map.DensityMap`.
         model: the network; ``model_path`` the file it came from (None if passed in).
         model_metadata: the checkpoint's metadata.
         stats: the integration counters summed over every cloud.
@@ -254,16 +254,16 @@ class Assessor:
             config: the pipeline's configuration; default :class:`AssessorConfig()`.
             center: (x, y) of a fixed region of interest; overrides ``config.center``. None
                 (and no ``config.center``): the map follows the sensor.
-            model: a loaded :class:`~landing_zone.model.SafetyNet`, or a path to a checkpoint;
-                default ``config.model.path``, or the shipped model when that is empty.
+            model: a loaded :class:`~landing_zone.judging.net.SafetyNet`, or a path to a
+                checkpoint; default ``config.model.path``, or the shipped model when that is empty.
 
         Raises:
             ConfigError: an invalid configuration.
             ModelError: the model is missing, corrupt, or expects other inputs than the tiler
                 makes.
         """
-        from landing_zone.density_map import DensityMap, IntegrationStats
-        from landing_zone.tiles import tile_voxels
+        from landing_zone.mapping.density_map import DensityMap, IntegrationStats
+        from landing_zone.judging.tiles import tile_voxels
 
         # a private copy: the caller may go on editing theirs
         cfg = copy.deepcopy(config) if config is not None else AssessorConfig()
@@ -302,7 +302,7 @@ class Assessor:
     # -- set-up -----------------------------------------------------------------------------
 
     def _load_model(self, model: Any) -> tuple[Any, dict[str, Any], Path | None]:
-        from landing_zone.model import SafetyNet, load_model
+        from landing_zone.judging.net import SafetyNet, load_model
 
         if isinstance(model, SafetyNet):
             return model.eval(), {}, None
@@ -423,7 +423,7 @@ class Assessor:
 
     def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copy of the counts the tiles' inputs read: their bounding box, padding included,
-        clipped to the window (as :func:`landing_zone.tiles.extract_tiles` reads them, but
+        clipped to the window (as :func:`landing_zone.judging.tiles.extract_tiles` reads them, but
         only the copy is made under the map's lock)."""
         pad = self.config.tiles.padding
         lo = np.asarray(self.map.lo, np.int64)
@@ -441,8 +441,8 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
-        from landing_zone.model import predict
-        from landing_zone.tiles import tiles_from_counts
+        from landing_zone.judging.net import predict
+        from landing_zone.judging.tiles import tiles_from_counts
 
         with self._assess_lock:
             t0 = time.perf_counter()

@@ -3,8 +3,8 @@
 1. :func:`landing_zone.sim.flight.simulate_flight` writes the default site's flight (20 x 20 m
    of grass patches and obstacles, a lawnmower pass at 8 m) as ``site.mcap`` and its ground
    truth as ``site.labels.json``.
-2. :func:`landing_zone.replay.replay` runs the node's pipeline on it with the map fixed on the
-   site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
+2. :func:`landing_zone.frontends.replay.replay` runs the node's pipeline on it with the map fixed
+   on the site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
 3. The tile map is printed in colour (green safe, red unsafe, grey unknown; ``XX`` marks the
    tiles an obstacle really overlaps), with the AUC of the per-tile P(safe) against the labels
    over the tiles that were judged, and the fraction judged.
@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from rich.text import Text
 
     from landing_zone.assessor import Assessment
-    from landing_zone.replay import ReplayResult
+    from landing_zone.frontends.replay import ReplayResult
 
 __all__ = ['DemoResult', 'label_scores', 'tile_map', 'run_demo']
 
@@ -145,7 +145,7 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     from rich.console import Console
 
     from landing_zone.assessor import default_model_path
-    from landing_zone.replay import replay
+    from landing_zone.frontends.replay import replay
     from landing_zone.sim.flight import FlightConfig, simulate_flight
 
     console = console or Console(highlight=False)

@@ -2,8 +2,8 @@
 
 The adapters read messages through their attributes only, so the same functions accept messages
 from rclpy (``sensor_msgs.msg.PointCloud2``, ...) and from a rosbags typestore (what
-:func:`landing_zone.bagio.read_messages` yields). Building messages needs to know which of the two
-implementations to build: :class:`MessageTypes` names it, and every builder takes one.
+:func:`landing_zone.io.bags.read_messages` yields). Building messages needs to know which of the
+two implementations to build: :class:`MessageTypes` names it, and every builder takes one.
 
 Modules:
     pointcloud: PointCloud2 <-> numpy structured / (N, 3) arrays.
@@ -69,7 +69,7 @@ class MessageTypes:
     def rosbags(cls, typestore: Typestore | None = None) -> MessageTypes:
         """Message classes of a rosbags typestore (default: the Jazzy store of ``bagio``)."""
         if typestore is None:
-            from landing_zone.bagio import typestore as jazzy_typestore
+            from landing_zone.io.bags import typestore as jazzy_typestore
             typestore = jazzy_typestore()
         return cls('rosbags', typestore)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landing_zone.bagio import BagMessage, BagWriter, bag_topics, read_messages, typestore
+from landing_zone.io.bags import BagMessage, BagWriter, bag_topics, read_messages, typestore
 from landing_zone.errors import BagError
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
 from msg_adapters.pointcloud import cloud_to_structured, cloud_to_xyz, make_cloud

@@ -53,7 +53,7 @@ def flights(tmp_path_factory):
 
 def _load(bag: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points (N, 3), labels (N,) and the sensor origin of each point's cloud (N, 3)."""
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     from msg_adapters.pointcloud import cloud_to_structured
     from msg_adapters.pose import pose_stamped_to_arrays
     poses, pts, lab, org = {}, [], [], []

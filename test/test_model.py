@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from landing_zone.errors import ConfigError, ModelError
-from landing_zone.model import (PAPER_SPEC, Layer, SafetyNet, SafetyNetConfig, format_spec,
-                                load_model, parse_spec, predict, read_metadata, save_model)
+from landing_zone.judging.net import (PAPER_SPEC, Layer, SafetyNet, SafetyNetConfig, format_spec,
+                                      load_model, parse_spec, predict, read_metadata, save_model)
 
 SMALL = 'C5-F8-P2-D32'
 

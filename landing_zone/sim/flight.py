@@ -602,7 +602,7 @@ def _write_bag(out: Path, config: FlightConfig, scans: list[list[Returns] | None
 
     Messages go in stamp order (a pose just before the cloud of the same stamp).
     """
-    from landing_zone.bagio import BagWriter, typestore
+    from landing_zone.io.bags import BagWriter, typestore
     from msg_adapters import MessageTypes, make_header
     from msg_adapters.pointcloud import make_cloud, points_to_structured
     from msg_adapters.pose import make_pose_stamped

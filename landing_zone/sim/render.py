@@ -180,7 +180,7 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
 
 
 def _render_flight(bag: Path, out: Path) -> Path:
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     from msg_adapters.pointcloud import cloud_to_structured
     parts, labels = [], []
     has_labels = True

@@ -23,7 +23,7 @@ rounding (1e-16 relative) may be ordered either way. Each ray is first clipped t
 Why by hand: no library walks rays through a scrolling voxel grid with hit/pass counts; OctoMap
 (the closest) is 100x slower here (`landing-zone bench integrate`) and keeps log-odds in an octree.
 
-Storage (owned by :class:`landing_zone.density_map.DensityMap`): a ring buffer indexed by
+Storage (owned by :class:`landing_zone.mapping.density_map.DensityMap`): a ring buffer indexed by
 ``g mod M`` per axis, laid out in 4 x 4 x 4 bricks of 64 consecutive bytes (one cache line per
 brick), so a ray's consecutive voxels and the voxels of neighbouring rays share cache lines.
 Counts are a hot ``uint8`` array per kind (hits, passes) plus a sparse cold array of high bytes:

@@ -20,10 +20,11 @@ The pieces:
   it the ground.
 * :func:`insert_obstacles`: the bag tool. The sensor origin of a cloud is the pose topic
   interpolated at the cloud's ``header.stamp``, with the stream's own message decoding
-  (:func:`~landing_zone.stream.read_pose_msg`, :func:`~landing_zone.stream.read_cloud_header`)
-  and interpolation (:class:`~landing_zone.poses.PoseBuffer`, same tolerance), as the node does.
+  (:func:`~landing_zone.frontends.stream.read_pose_msg`,
+  :func:`~landing_zone.frontends.stream.read_cloud_header`) and interpolation
+  (:class:`~landing_zone.poses.PoseBuffer`, same tolerance), as the node does.
   The output bag is the input copied message by message as CDR bytes
-  (:class:`~landing_zone.bagio.RawBag`); in a cloud with altered returns only the ``x``, ``y``,
+  (:class:`~landing_zone.io.bags.RawBag`); in a cloud with altered returns only the ``x``, ``y``,
   ``z`` bytes of those returns change (in the cloud's own layout, precision and byte order), and
   its ``label`` field, when it has an integer one (simulated flights: 0 ground, 1 grass,
   2 obstacle), is set to 2 (obstacle) for them. Every other byte of every message, every topic,
@@ -664,8 +665,9 @@ def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points'
     """All returns of a flight with their sensor origins, as the node would integrate them.
 
     Poses and clouds are decoded as the stream decodes them
-    (:func:`~landing_zone.stream.read_pose_msg`, :func:`~landing_zone.stream.read_cloud_header`);
-    a cloud's origin is the pose interpolated at its header stamp by a
+    (:func:`~landing_zone.frontends.stream.read_pose_msg`,
+    :func:`~landing_zone.frontends.stream.read_cloud_header`); a cloud's origin is the pose
+    interpolated at its header stamp by a
     :class:`~landing_zone.poses.PoseBuffer` holding every pose, with the stream's tolerance
     (``StreamConfig.pose_tolerance``) at both ends. Clouds and poses in other frames are left
     out, as are malformed ones.
@@ -673,11 +675,11 @@ def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points'
     Raises:
         BagError: unreadable bag, missing topics, no pose or no cloud in the frame.
     """
-    from landing_zone.bagio import RawBag
+    from landing_zone.io.bags import RawBag
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
     from landing_zone.poses import PoseBuffer
-    from landing_zone.replay import check_bag_topics
-    from landing_zone.stream import StreamConfig, read_cloud_header, read_pose_msg
+    from landing_zone.frontends.replay import check_bag_topics
+    from landing_zone.frontends.stream import StreamConfig, read_cloud_header, read_pose_msg
 
     bag = Path(bag)
     check_bag_topics(bag, points_topic, pose_topic)
@@ -763,9 +765,9 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
         ConfigError: bad region, labels or noise.
         SimulationError: unknown kinds or group, a count that does not fit.
     """
-    from landing_zone.bagio import BagWriter, RawBag
+    from landing_zone.io.bags import BagWriter, RawBag
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
-    from landing_zone.stream import read_cloud_header
+    from landing_zone.frontends.stream import read_cloud_header
 
     t_start = time.perf_counter()
     bag, out = Path(bag), Path(out)

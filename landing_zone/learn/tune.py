@@ -12,7 +12,7 @@ drawn by Optuna's RandomSampler and recorded in the study's storage, so a rerun 
 storage continues until the study holds ``trials`` finished trials. A spec whose layers shrink
 the 32^3 input to nothing, or whose net would exceed ``max_params``, is recorded as pruned.
 
-The objective is the validation AUC of :func:`landing_zone.train.train` on the dataset's
+The objective is the validation AUC of :func:`landing_zone.learn.train.train` on the dataset's
 training split with a small sample budget by default; each trial also records the net's
 multiply-adds per volume, its parameters and its training time, since a net as accurate for
 fewer operations is what the on-board budget needs.
@@ -109,8 +109,8 @@ def tune(data: str | os.PathLike, config: TuneConfig | None = None,
     """
     import optuna
 
-    from landing_zone.model import SafetyNet, SafetyNetConfig, parse_spec
-    from landing_zone.train import TrainConfig, train
+    from landing_zone.judging.net import SafetyNet, SafetyNetConfig, parse_spec
+    from landing_zone.learn.train import TrainConfig, train
 
     cfg = config if config is not None else TuneConfig()
     cfg.validate()

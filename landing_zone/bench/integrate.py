@@ -19,8 +19,8 @@ import time
 import numpy as np
 
 from landing_zone.config import MapConfig
-from landing_zone.density_map import DensityMap
-from landing_zone.raytrace import PARTS
+from landing_zone.mapping.density_map import DensityMap
+from landing_zone.mapping.raytrace import PARTS
 
 BATCH = 10_000
 SENSOR = np.array([-10.0, 0.0, 8.0])  # 10 m back, 8 m above the ground (near z = 0)

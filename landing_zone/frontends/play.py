@@ -1,7 +1,7 @@
 """``landing-zone play``: publish a bag's messages over rclpy at the recorded (or a scaled) rate.
 
 There is no ``ros2 bag`` in a pip-installed ROS, so this is how a recorded or simulated flight
-drives the live node. Messages are read with :mod:`landing_zone.bagio` (ROS 2 .mcap / .db3,
+drives the live node. Messages are read with :mod:`landing_zone.io.bags` (ROS 2 .mcap / .db3,
 ROS 1 .bag), turned into rclpy messages through their CDR bytes (rosbags serializes, rclpy
 deserializes: the wire format is the one thing both implementations share exactly) and
 published in log-time order, each at ``start + (log_time - first_log_time) / rate``.
@@ -50,7 +50,7 @@ def to_rclpy(msg: Any, msgtype: str, cls: type) -> Any:
     """A rosbags message as an instance of the rclpy class ``cls``, via its CDR bytes."""
     from rclpy.serialization import deserialize_message
 
-    from landing_zone.bagio import typestore
+    from landing_zone.io.bags import typestore
 
     try:
         cdr = typestore().serialize_cdr(msg, msgtype)
@@ -89,7 +89,7 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from tqdm import tqdm
 
-    from landing_zone.bagio import bag_topics, read_messages
+    from landing_zone.io.bags import bag_topics, read_messages
     from msg_adapters import MessageTypes
 
     if not rate > 0:

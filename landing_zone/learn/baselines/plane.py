@@ -16,7 +16,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from landing_zone.baselines.volumes import VolumeGeometry, as_volumes
+from landing_zone.learn.baselines.volumes import VolumeGeometry, as_volumes
 from landing_zone.errors import ConfigError, InvalidCloudError
 
 __all__ = ['PlaneResiduals', 'fit_plane', 'plane_residual_sum']

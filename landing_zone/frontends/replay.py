@@ -1,7 +1,8 @@
 """Bag front end: run the node's pipeline offline on a recorded bag (``landing-zone replay``).
 
-The bag's clouds and poses go, in log-time order, through the same :class:`~landing_zone.stream.
-Stream` and :class:`~landing_zone.assessor.Assessor` the node uses. Each assessment is written
+The bag's clouds and poses go, in log-time order, through the same
+:class:`~landing_zone.frontends.stream.Stream` and :class:`~landing_zone.assessor.Assessor` the
+node uses. Each assessment is written
 into the output bag at the stamp of the newest cloud it includes (the moment the node would
 have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/safety_cloud``,
 ``/assessor/landing_sites``, ``/assessor/markers``, ``/diagnostics``); the final state goes to
@@ -29,7 +30,7 @@ from landing_zone.errors import BagError, ConfigError
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment
     from landing_zone.config import AssessorConfig
-    from landing_zone.stream import Stream, StreamConfig
+    from landing_zone.frontends.stream import Stream, StreamConfig
 
 __all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME',
            'check_bag_topics']
@@ -121,7 +122,7 @@ class _Outputs:
 
 def check_bag_topics(bag: Path, points_topic: str, pose_topic: str) -> None:
     """Raise BagError unless the bag has both topics with the right types (one line)."""
-    from landing_zone.bagio import bag_topics
+    from landing_zone.io.bags import bag_topics
 
     topics = bag_topics(bag)
     for topic, want in ((points_topic, POINTS_TYPE), (pose_topic, POSE_TYPE)):
@@ -170,8 +171,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     from tqdm import tqdm
 
     from landing_zone.assessor import Assessor
-    from landing_zone.bagio import BagWriter, read_messages
-    from landing_zone.stream import Stream
+    from landing_zone.io.bags import BagWriter, read_messages
+    from landing_zone.frontends.stream import Stream
 
     t_start = time.perf_counter()
     bag = Path(bag)

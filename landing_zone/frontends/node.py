@@ -5,7 +5,7 @@ Topics (docs/INTERFACES.md §1): registered clouds on ``points`` and the sensor 
 ``~/markers`` out (reliable, transient local, depth 1, so a planner that joins late gets the
 latest), and ``/diagnostics``.
 
-The node is a thin adapter over :class:`~landing_zone.stream.Stream` and
+The node is a thin adapter over :class:`~landing_zone.frontends.stream.Stream` and
 :class:`~landing_zone.assessor.Assessor`, the same objects ``landing-zone replay`` drives:
 
 * the clouds and poses are integrated in their subscription callbacks (one mutually exclusive
@@ -22,8 +22,9 @@ The node is a thin adapter over :class:`~landing_zone.stream.Stream` and
   ``warn_period`` seconds per reason; the map is never touched by it.
 
 Parameters are the dotted names of :meth:`AssessorConfig.to_flat` (``map.voxel_size``, ...) plus
-the stream's timing (:class:`~landing_zone.stream.StreamConfig`) and a few of the node's own,
-each declared with a :class:`ParameterDescriptor`; ``config/assessor.yaml`` lists them all.
+the stream's timing (:class:`~landing_zone.frontends.stream.StreamConfig`) and a few of the
+node's own, each declared with a :class:`ParameterDescriptor`; ``config/assessor.yaml`` lists
+them all.
 """
 from __future__ import annotations
 
@@ -46,7 +47,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 
 from landing_zone.config import AssessorConfig
 from landing_zone.errors import ConfigError, LandingZoneError
-from landing_zone.stream import NS, Stream, StreamConfig, configs_from_flat
+from landing_zone.frontends.stream import NS, Stream, StreamConfig, configs_from_flat
 
 __all__ = ['AssessorNode', 'PARAMETERS', 'main']
 

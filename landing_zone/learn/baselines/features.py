@@ -9,8 +9,8 @@ Each occupied voxel of a tile's core gets 16 features, in five groups:
   direction (of ``l1``), and the spread (standard deviation) of the normal angle over the
   neighbourhood;
 - height: height above the tile's ground estimate (the centre of voxel S // 2 in z, where
-  :mod:`landing_zone.tiles` puts the ground voxel), and the standard deviation and the range
-  of the occupied heights in the surrounding columns;
+  :mod:`landing_zone.judging.tiles` puts the ground voxel), and the standard deviation and the
+  range of the occupied heights in the surrounding columns;
 - more shape: omnivariance, eigenentropy, and the fill of the neighbourhood (occupied
   fraction);
 - density statistics, standing in for the range-variance features of the literature (the
@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from scipy import ndimage
 
-from landing_zone.baselines.volumes import VolumeGeometry, as_volumes
+from landing_zone.learn.baselines.volumes import VolumeGeometry, as_volumes
 from landing_zone.errors import ConfigError
 
 __all__ = ['FEATURE_NAMES', 'VoxelFeatures', 'voxel_features', 'spectral_features']

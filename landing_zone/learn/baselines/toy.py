@@ -11,7 +11,7 @@ from typing import Callable
 
 import numpy as np
 
-from landing_zone.baselines.volumes import VolumeGeometry
+from landing_zone.learn.baselines.volumes import VolumeGeometry
 
 __all__ = ['heightfield_volume', 'boxes_and_flats']
 

@@ -1,6 +1,6 @@
 """`landing-zone bench`: the project's performance benchmarks.
 
-One module per benchmark under :mod:`landing_zone.benchmarks`, each with
+One module per benchmark under :mod:`landing_zone.bench`, each with
 ``run(batches: int, seed: int) -> dict`` that prints its own table and returns its figures.
 Every report starts with the machine it ran on, since figures mean nothing without it.
 """
@@ -37,9 +37,9 @@ def run(which: list[str], batches: int = 30, seed: int = 0) -> dict[str, dict]:
     results = {}
     for name in which or NAMES:
         try:
-            module = importlib.import_module(f'landing_zone.benchmarks.{name}')
+            module = importlib.import_module(f'landing_zone.bench.{name}')
         except ModuleNotFoundError as err:
-            if err.name != f'landing_zone.benchmarks.{name}':
+            if err.name != f'landing_zone.bench.{name}':
                 raise
             print(f'\n[{name}] not available yet')
             continue

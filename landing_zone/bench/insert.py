@@ -16,7 +16,7 @@ from typing import Any
 
 def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
     """Time insert-obstacles on the demo flight; print a table, return the figures."""
-    from landing_zone.insert import insert_obstacles
+    from landing_zone.sim.insert import insert_obstacles
     from landing_zone.sim.flight import FlightConfig, simulate_flight
 
     repeats = max(1, min(3, batches // 10))

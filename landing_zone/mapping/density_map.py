@@ -8,7 +8,7 @@ a ray stops there, ``(hits + 1) / (hits + passes + 2)``, and it is observed once
 
 Scrolling is a ring buffer (storage index ``g mod M`` per axis): moving the window clears only
 the slabs that enter it, so its cost is proportional to what moves. Storage layout, threads and
-the walk itself are described in :mod:`landing_zone.raytrace`.
+the walk itself are described in :mod:`landing_zone.mapping.raytrace`.
 """
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ import numpy as np
 
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
-from landing_zone.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
-                                   prepare_rays, run_parts, trace_rays)
+from landing_zone.mapping.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
+                                           prepare_rays, run_parts, trace_rays)
 
 __all__ = ['DensityMap', 'IntegrationStats', 'COUNT_MAX']
 

@@ -1,8 +1,9 @@
 """Bag of words over hand-crafted voxel features, then a random forest.
 
 The paper's strongest baseline, the classic point-cloud classification pipeline: describe every
-occupied voxel of the tile by local features (:mod:`landing_zone.baselines.features`), learn a
-codebook of 512 feature "words" by k-means on a quarter of the training volumes, describe each
+occupied voxel of the tile by local features (:mod:`landing_zone.learn.baselines.features`),
+learn a codebook of 512 feature "words" by k-means on a quarter of the training volumes,
+describe each
 volume by its soft histogram over the words, and classify the histograms with a random forest.
 
 Soft quantisation: each voxel spreads a unit of weight over its ``neighbours`` nearest words
@@ -19,9 +20,9 @@ import numpy as np
 from sklearn.cluster import MiniBatchKMeans
 from sklearn.ensemble import RandomForestClassifier
 
-from landing_zone.baselines.features import VoxelFeatures, voxel_features
-from landing_zone.baselines.raw_forest import make_forest, safe_probability
-from landing_zone.baselines.volumes import VolumeGeometry, as_labels, as_volumes
+from landing_zone.learn.baselines.features import VoxelFeatures, voxel_features
+from landing_zone.learn.baselines.raw_forest import make_forest, safe_probability
+from landing_zone.learn.baselines.volumes import VolumeGeometry, as_labels, as_volumes
 from landing_zone.errors import ConfigError, DatasetError, ModelError
 
 __all__ = ['BowForest']

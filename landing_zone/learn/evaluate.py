@@ -6,11 +6,11 @@ Run::
     landing-zone evaluate --data data/synth2 --baselines --json results.json
 
 Every method reads the same inputs, the test scenes re-voxelized by
-:func:`landing_zone.tiles.scene_to_input` without augmentation. A method is any object with a
-``name``, ``score(inputs) -> (T,)`` (higher = safer) and optionally ``fit(train_inputs,
+:func:`landing_zone.judging.tiles.scene_to_input` without augmentation. A method is any object
+with a ``name``, ``score(inputs) -> (T,)`` (higher = safer) and optionally ``fit(train_inputs,
 train_labels)`` and ``probabilistic`` (its scores are P(safe), so an ECE is reported; without
 the attribute, scores that all lie in [0, 1] count as probabilities). The CNN and the baselines
-of :mod:`landing_zone.baselines` plug in alike.
+of :mod:`landing_zone.learn.baselines` plug in alike.
 
 **Conventions.** "Safe" (label 1) is the positive class: the ROC plots the share of safe tiles
 accepted against the share of unsafe tiles accepted as the threshold on the score moves, and
@@ -38,10 +38,10 @@ from typing import Any, Protocol, Sequence, runtime_checkable
 import numpy as np
 import torch
 
-from landing_zone.calibration import Reliability, reliability
+from landing_zone.learn.calibration import Reliability, reliability
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.model import SafetyNet, load_model, predict
+from landing_zone.judging.net import SafetyNet, load_model, predict
 
 __all__ = ['Method', 'CNNMethod', 'MethodResult', 'evaluate_methods', 'markdown_table',
            'results_json', 'class_models', 'evaluate', 'evaluate_scenes', 'confident_mistakes']
@@ -400,8 +400,8 @@ def evaluate(data: str | os.PathLike,
         model: model file, or several (each its own row, e.g. both of the paper's nets, or a
             model before and after fine-tuning); default the shipped model (unless only
             baselines are asked for and none is shipped).
-        baselines: also evaluate :func:`landing_zone.baselines.make_baselines`, fitted on up to
-            ``fit_scenes`` scenes of the train split.
+        baselines: also evaluate :func:`landing_zone.learn.baselines.make_baselines`, fitted on
+            up to ``fit_scenes`` scenes of the train split.
         json_path: write RESULTS.json (docs/INTERFACES.md §3) here.
         out_dir: write table.md, the plots and the look inside here.
         split: 'test' (obstacle models never seen in training) or 'train'.
@@ -456,7 +456,7 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         extra_methods: more methods (see :class:`Method`) to evaluate after these.
         Others: see :func:`evaluate`.
     """
-    from landing_zone.train import ScenePack, voxelize
+    from landing_zone.learn.train import ScenePack, voxelize
 
     paths = [] if model is None else [model] if isinstance(model, (str, os.PathLike)) \
         else list(model)
@@ -470,7 +470,7 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     tile_vox = int(round(tcfg.tile_size / mcfg.voxel_size))
     others: list[Any] = []
     if baselines:
-        from landing_zone.baselines import VolumeGeometry, make_baselines
+        from landing_zone.learn.baselines import VolumeGeometry, make_baselines
         geometry = VolumeGeometry(voxel_size=mcfg.voxel_size, tile_size=tcfg.tile_size,
                                   occupied_density=tcfg.occupied_density)
         others.extend(make_baselines(seed=seed, geometry=geometry))

@@ -20,7 +20,7 @@ The XY plane is cut on the global tile lattice (tile ``k = floor(x / tile_size)`
    returns fell into its column; other tiles are marked not valid (unknown), never guessed.
 
 The core, :func:`tiles_from_counts`, works on plain count arrays so grids can be built by hand;
-:func:`extract_tiles` reads them from a :class:`~landing_zone.density_map.DensityMap` and
+:func:`extract_tiles` reads them from a :class:`~landing_zone.mapping.density_map.DensityMap` and
 :func:`scene_to_input` re-voxelizes one simulated patch exactly as the deployed map would, so the
 network is trained on what it will see.
 """
@@ -40,7 +40,7 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError
 
 if TYPE_CHECKING:
-    from landing_zone.density_map import DensityMap
+    from landing_zone.mapping.density_map import DensityMap
 
 __all__ = [
     'TileBatch',
@@ -335,7 +335,7 @@ _patch_maps = threading.local()
 
 
 def _patch_map(voxel_size: float, tile_vox: int, nz: int) -> DensityMap:
-    from landing_zone.density_map import DensityMap
+    from landing_zone.mapping.density_map import DensityMap
 
     key = (voxel_size, tile_vox, nz)
     cache = getattr(_patch_maps, 'maps', None)

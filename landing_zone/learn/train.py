@@ -9,8 +9,9 @@ Run::
     landing-zone train --data data/synth2 --out m.safetensors --device cuda --workers 15 \\
         --cache-voxels 20                                                     # a GPU box
 
-Every sample is one scene's returns re-voxelized by :func:`landing_zone.tiles.scene_to_input`
-after a random yaw about the tile centre and a random vertical shift, so the net sees exactly
+Every sample is one scene's returns re-voxelized by
+:func:`landing_zone.judging.tiles.scene_to_input` after a random yaw about the tile centre and a
+random vertical shift, so the net sees exactly
 what the deployed map would give it. The randomness of sample ``(epoch, scene, copy)`` comes
 from ``SeedSequence([seed, epoch, scene, copy])``, not from the worker that makes it, and the
 batch order of an epoch from ``(seed, epoch)``, so the same seed gives the same model on the
@@ -40,12 +41,12 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from landing_zone.calibration import binary_nll, expected_calibration_error, fit_temperature
+from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
-from landing_zone.model import (DEFAULT_SPEC, SafetyNet, SafetyNetConfig, bf16_supported,
-                                load_model, predict, read_metadata, save_model)
-from landing_zone.tiles import scene_to_input, tile_voxels
+from landing_zone.judging.net import (DEFAULT_SPEC, SafetyNet, SafetyNetConfig, bf16_supported,
+                                      load_model, predict, read_metadata, save_model)
+from landing_zone.judging.tiles import scene_to_input, tile_voxels
 
 __all__ = ['TrainConfig', 'ScenePack', 'AugmentedVolumes', 'EpochSampler', 'split_scenes',
            'voxelize', 'train', 'state_path', 'log_path', 'roc_auc']
@@ -804,8 +805,8 @@ def describe(path: str | os.PathLike) -> str:
 
 
 # -----------------------------------------------------------------------------------------------
-# a command line with the standard library only (``python -m landing_zone.train``), for training
-# boxes without typer; ``landing-zone train`` takes the same options
+# a command line with the standard library only (``python -m landing_zone.learn.train``), for
+# training boxes without typer; ``landing-zone train`` takes the same options
 
 _HELP = {
     'arch': 'network spec', 'epochs': 'passes over the augmented training set',
@@ -824,11 +825,11 @@ _HELP = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m landing_zone.train --data DIR --out MODEL [options]``."""
+    """``python -m landing_zone.learn.train --data DIR --out MODEL [options]``."""
     import argparse
 
     parser = argparse.ArgumentParser(
-        prog='python -m landing_zone.train',
+        prog='python -m landing_zone.learn.train',
         description='Train the safety CNN (same options as `landing-zone train`).')
     parser.add_argument('--data', required=True, nargs='+', help='dataset directories')
     parser.add_argument('--out', required=True, help='model file to write (.safetensors)')

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from sklearn.ensemble import RandomForestClassifier
 
-from landing_zone.baselines.volumes import as_labels, as_volumes
+from landing_zone.learn.baselines.volumes import as_labels, as_volumes
 from landing_zone.errors import DatasetError, ModelError
 
 __all__ = ['RawForest', 'make_forest', 'safe_probability']

@@ -16,11 +16,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from landing_zone.baselines.bow import BowForest
-from landing_zone.baselines.features import FEATURE_NAMES, VoxelFeatures, voxel_features
-from landing_zone.baselines.plane import PlaneResiduals, fit_plane, plane_residual_sum
-from landing_zone.baselines.raw_forest import RawForest
-from landing_zone.baselines.volumes import VolumeGeometry, as_volumes
+from landing_zone.learn.baselines.bow import BowForest
+from landing_zone.learn.baselines.features import FEATURE_NAMES, VoxelFeatures, voxel_features
+from landing_zone.learn.baselines.plane import PlaneResiduals, fit_plane, plane_residual_sum
+from landing_zone.learn.baselines.raw_forest import RawForest
+from landing_zone.learn.baselines.volumes import VolumeGeometry, as_volumes
 
 __all__ = [
     'Baseline',

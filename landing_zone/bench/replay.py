@@ -11,7 +11,7 @@ the default architecture stands in (inference costs the same; the figures say wh
    breakdown by stage. ``batches`` sets the repeats (one per ten batches, 1 to 3; the best is
    reported, the machine being shared).
 2. **Cloud-to-grid latency** of the node's arrangement, in process: one thread feeds the clouds
-   at their recorded rate into a :class:`~landing_zone.stream.Stream` (decoding and
+   at their recorded rate into a :class:`~landing_zone.frontends.stream.Stream` (decoding and
    integrating, as the node's subscription callback does), another ticks every 20 ms as the
    node's assessment timer does and runs a pass when one is due, then builds the output
    messages. Latency is from the arrival of the oldest cloud a pass took in to the end of that
@@ -40,7 +40,7 @@ def _model(tmp: Path, seed: int) -> tuple[Path, str]:
     except ModelError:
         import torch
 
-        from landing_zone.model import SafetyNet, SafetyNetConfig, save_model
+        from landing_zone.judging.net import SafetyNet, SafetyNetConfig, save_model
 
         torch.manual_seed(seed)
         path = tmp / 'untrained.safetensors'
@@ -51,8 +51,8 @@ def _model(tmp: Path, seed: int) -> tuple[Path, str]:
 def _latency(bag: Path, model: Path) -> dict[str, Any]:
     """Feed the clouds in real time on one thread, assess on another, as the node does."""
     from landing_zone.assessor import Assessor
-    from landing_zone.bagio import read_messages
-    from landing_zone.stream import Stream
+    from landing_zone.io.bags import read_messages
+    from landing_zone.frontends.stream import Stream
     from msg_adapters import MessageTypes, grid
 
     messages = list(read_messages(bag, ['/lidar/points', '/lidar/pose']))
@@ -106,7 +106,7 @@ def _latency(bag: Path, model: Path) -> dict[str, Any]:
 
 def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
     """Run both measurements, print a table, return the figures."""
-    from landing_zone.replay import replay
+    from landing_zone.frontends.replay import replay
     from landing_zone.sim.flight import FlightConfig, simulate_flight
 
     repeats = max(1, min(3, batches // 10))

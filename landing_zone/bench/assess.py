@@ -12,9 +12,9 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
 - for reference, a training step (forward + backward + SGD, batch 20) and the data pipeline
   (re-voxelizing one 26k-return patch, one process).
 
-Two nets are timed: the shipped model (:data:`~landing_zone.model.DEFAULT_SPEC`) and the
-paper's :data:`~landing_zone.model.PAPER_SPEC`, each loaded from ``models/`` where the file is
-there, otherwise an untrained net of that architecture, which costs exactly the same (timing
+Two nets are timed: the shipped model (:data:`~landing_zone.judging.net.DEFAULT_SPEC`) and the
+paper's :data:`~landing_zone.judging.net.PAPER_SPEC`, each loaded from ``models/`` where the file
+is there, otherwise an untrained net of that architecture, which costs exactly the same (timing
 only: its outputs mean nothing). Figures are medians of repeats (best in brackets): the cores
 are shared.
 """
@@ -27,12 +27,12 @@ import numpy as np
 import torch
 
 from landing_zone.config import MapConfig, TileConfig
-from landing_zone.density_map import DensityMap
-from landing_zone.model import (DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig,
-                                bf16_supported, load_model, predict)
-from landing_zone.tiles import extract_tiles, scene_to_input, widen_tiles
+from landing_zone.mapping.density_map import DensityMap
+from landing_zone.judging.net import (DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig,
+                                      bf16_supported, load_model, predict)
+from landing_zone.judging.tiles import extract_tiles, scene_to_input, widen_tiles
 
-from landing_zone.benchmarks.integrate import SENSOR, make_batches
+from landing_zone.bench.integrate import SENSOR, make_batches
 
 TARGET_MAP_S = 1.0
 AIM_MAP_S = 0.25
