@@ -94,7 +94,8 @@ def replay(
         help='SITE.labels.json: mark the true obstacles in the PNG.')] = None,
 ) -> None:
     from landing_zone.frontends.replay import replay as run_replay
-    from landing_zone.frontends.stream import configs_from_flat, read_params_file
+    from landing_zone.config import configs_from_flat
+    from landing_zone.io.params import read_params_file
 
     config = stream_config = None
     if params is not None:

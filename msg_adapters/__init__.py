@@ -15,6 +15,7 @@ message modules when a class is first asked for.
 from __future__ import annotations
 
 import array
+import functools
 import importlib
 import operator
 from typing import TYPE_CHECKING, Any, Literal
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 __all__ = [
+    'jazzy_typestore',
     'MessageTypes',
     'as_message_types',
     'stamp_to_ns',
@@ -36,6 +38,13 @@ __all__ = [
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
+
+
+@functools.lru_cache(maxsize=1)
+def jazzy_typestore() -> Typestore:
+    """The rosbags typestore of ROS 2 Jazzy (messages this project writes are built from it)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
 
 
 class MessageTypes:
@@ -67,11 +76,8 @@ class MessageTypes:
 
     @classmethod
     def rosbags(cls, typestore: Typestore | None = None) -> MessageTypes:
-        """Message classes of a rosbags typestore (default: the Jazzy store of ``bagio``)."""
-        if typestore is None:
-            from landing_zone.io.bags import typestore as jazzy_typestore
-            typestore = jazzy_typestore()
-        return cls('rosbags', typestore)
+        """Message classes of a rosbags typestore (default: :func:`jazzy_typestore`)."""
+        return cls('rosbags', typestore if typestore is not None else jazzy_typestore())
 
     def get(self, msgtype: str) -> type:
         """The class of a message type.

@@ -8,9 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landing_zone.io.bags import BagMessage, BagWriter, bag_topics, read_messages, typestore
+from landing_zone.io.bags import BagMessage, BagWriter, bag_topics, read_messages
 from landing_zone.errors import BagError
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
+from msg_adapters import jazzy_typestore as typestore
 from msg_adapters.pointcloud import cloud_to_structured, cloud_to_xyz, make_cloud
 from msg_adapters.pointcloud import points_to_structured
 from msg_adapters.pose import make_pose_stamped, pose_stamped_to_arrays

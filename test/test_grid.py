@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from landing_zone.assessor import Assessment
-from landing_zone.io.bags import typestore
+from msg_adapters import jazzy_typestore as typestore
 from landing_zone.judging.sites import LandingSite
 from msg_adapters import MessageTypes
 from msg_adapters import grid as g

@@ -252,7 +252,7 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
     from rcl_interfaces.srv import DescribeParameters, SetParameters
     from rclpy.parameter import Parameter
 
-    from landing_zone.frontends.node import PARAMETERS, default_parameters
+    from landing_zone.config import PARAMETERS, default_parameters
 
     # every parameter has a description; the YAML lists every one of them
     assert set(default_parameters()) | {'region_center'} == set(PARAMETERS)
@@ -292,8 +292,8 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
 def test_params_file_has_the_ros_layout_and_every_default():
     import yaml
 
-    from landing_zone.frontends.node import default_parameters
-    from landing_zone.frontends.stream import read_params_file
+    from landing_zone.config import default_parameters
+    from landing_zone.io.params import read_params_file
 
     root = os.path.join(os.path.dirname(__file__), '..', 'config', 'assessor.yaml')
     flat = read_params_file(root)

@@ -22,8 +22,9 @@ The node is a thin adapter over :class:`~landing_zone.frontends.stream.Stream` a
   ``warn_period`` seconds per reason; the map is never touched by it.
 
 Parameters are the dotted names of :meth:`AssessorConfig.to_flat` (``map.voxel_size``, ...) plus
-the stream's timing (:class:`~landing_zone.frontends.stream.StreamConfig`) and a few of the
-node's own, each declared with a :class:`ParameterDescriptor`; ``config/assessor.yaml`` lists
+the stream's timing (:class:`~landing_zone.config.StreamConfig`) and the node's own
+(:class:`~landing_zone.config.NodeConfig`), each declared with a :class:`ParameterDescriptor`
+made from its facts in :data:`landing_zone.config.PARAMETERS`; ``config/assessor.yaml`` lists
 them all.
 """
 from __future__ import annotations
@@ -45,90 +46,33 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 
-from landing_zone.config import AssessorConfig
+from landing_zone.config import PARAMETERS, configs_from_flat, default_parameters
 from landing_zone.errors import ConfigError, LandingZoneError
-from landing_zone.frontends.stream import NS, Stream, StreamConfig, configs_from_flat
+from landing_zone.frontends.stream import NS, Stream
 
-__all__ = ['AssessorNode', 'PARAMETERS', 'main']
+__all__ = ['AssessorNode', 'main']
 
 NODE_NAME = 'assessor'
 
-_F, _I = 'float', 'int'
-# name -> (description, range (lo, hi) or None, read_only). Every parameter has an entry;
-# read-only ones size the map, the tiles or the network, which cannot change under a live map.
-PARAMETERS: dict[str, tuple[str, tuple[float, float] | None, bool]] = {
-    'frame_id': ('Fixed frame of the clouds, poses and outputs.', None, True),
-    'map.voxel_size': ('Edge of a cubic voxel [m]; must match the model.', (0.005, 1.0), True),
-    'map.size_xy': ('Extent of the scrolling map in x and y [m].', (1.0, 400.0), True),
-    'map.size_z': ('Vertical extent of the map [m].', (0.5, 100.0), True),
-    'map.z_below': ('How far the map reaches below the ground under the sensor [m].',
-                    (0.0, 100.0), True),
-    'map.recenter_distance': ('Follow mode scrolls when the sensor is this far from the '
-                              'centre [m].', (0.0, 200.0), False),
-    'tiles.tile_size': ('Edge of a square tile [m]; a whole number of voxels.', (0.05, 10.0),
-                        True),
-    'tiles.padding': ('Voxels of context around a tile\'s cube; must match the model.',
-                      (0, 64), True),
-    'tiles.ground_quantile': ('Quantile of the column minima taken as the tile\'s ground.',
-                              (0.0, 0.99), False),
-    'tiles.occupied_density': ('Density from which a voxel counts as occupied (ground).',
-                               (0.5, 0.99), False),
-    'tiles.min_observed_fraction': ('Tiles with less of their cube observed are unknown.',
-                                    (0.0, 1.0), False),
-    'tiles.min_returns': ('Tiles with fewer returns in their column are unknown.',
-                          (0, 1_000_000), False),
-    'model.path': ('Model file (.safetensors); empty: the shipped model.', None, True),
-    'model.device': ('Inference device: cpu, cuda or cuda:N.', None, True),
-    'model.batch_size': ('Tiles per forward pass.', (1, 65536), False),
-    'landing_sites.footprint_radius': ('Radius of the vehicle\'s footprint [m].', (0.1, 50.0),
-                                       False),
-    'landing_sites.top_k': ('Landing-site candidates published, best first.', (0, 100), False),
-    'landing_sites.min_p_safe': ('Candidates below this P(all tiles safe) are left out.',
-                                 (0.0, 1.0), False),
-    'assessment_period': ('Stamp time between assessments [s].', (0.01, 60.0), False),
-    'pose_tolerance': ('How far a cloud may lie outside the poses\' span [s].', (0.0, 10.0),
-                       False),
-    'pose_wait': ('How long (stamp time) a cloud may wait for its pose [s].', (0.0, 10.0),
-                  False),
-    'max_pending': ('Clouds that may wait for their pose at once.', (1, 1000), False),
-    'pose_history': ('Span of poses kept for interpolation [s].', (0.1, 3600.0), True),
-    'region_center': ('X Y of a fixed region of interest; unset: the map follows the sensor.',
-                      None, True),
-    'qos_depth': ('History depth of the points and pose subscriptions.', (1, 1000), True),
-    'diagnostics_period': ('Seconds between /diagnostics messages.', (0.1, 60.0), True),
-    'idle_flush': ('After this long without input [s], waiting clouds are settled and the '
-                   'last ones assessed.', (0.05, 60.0), False),
-    'warn_period': ('Least seconds between two warnings of one kind.', (0.0, 3600.0), False),
-}
-# The node's own parameters and their defaults (region_center has no default: unset = follow).
-NODE_DEFAULTS: dict[str, Any] = {'qos_depth': 5, 'diagnostics_period': 1.0, 'idle_flush': 1.0,
-                                 'warn_period': 5.0}
 # How often the assessment timer looks whether a pass is due [s] (wall time).
 TICK = 0.02
 
 
 def _descriptor(name: str, value: Any) -> ParameterDescriptor:
-    description, bounds, read_only = PARAMETERS[name]
-    d = ParameterDescriptor(name=name, description=description, read_only=read_only)
-    if bounds is not None and isinstance(value, float):
-        d.floating_point_range = [FloatingPointRange(from_value=float(bounds[0]),
-                                                     to_value=float(bounds[1]), step=0.0)]
-    elif bounds is not None and isinstance(value, int) and not isinstance(value, bool):
-        d.integer_range = [IntegerRange(from_value=int(bounds[0]), to_value=int(bounds[1]),
+    """The descriptor of a parameter, from its facts in :data:`landing_zone.config.PARAMETERS`.
+
+    rcl checks closed ranges; an open end (``[0.5, 1)``) is advertised closed and the endpoint
+    itself refused by the on-set check, which validates the whole configuration.
+    """
+    p = PARAMETERS[name][1]
+    d = ParameterDescriptor(name=name, description=p.text, read_only=p.read_only)
+    if p.range is not None and isinstance(value, float):
+        d.floating_point_range = [FloatingPointRange(from_value=float(p.range[0]),
+                                                     to_value=float(p.range[1]), step=0.0)]
+    elif p.range is not None and isinstance(value, int) and not isinstance(value, bool):
+        d.integer_range = [IntegerRange(from_value=int(p.range[0]), to_value=int(p.range[1]),
                                         step=1)]
     return d
-
-
-def default_parameters() -> dict[str, Any]:
-    """Every parameter with a default, by name (the pipeline's, the stream's, the node's)."""
-    import dataclasses
-
-    out = dict(AssessorConfig().to_flat())
-    out.pop('center', None)
-    for f in dataclasses.fields(StreamConfig):
-        out[f.name] = getattr(StreamConfig(), f.name)
-    out.update(NODE_DEFAULTS)
-    return out
 
 
 class AssessorNode(Node):
@@ -147,7 +91,8 @@ class AssessorNode(Node):
         self.declare_parameter('region_center', Parameter.Type.DOUBLE_ARRAY,
                                ParameterDescriptor(
                                    name='region_center', type=ParameterType.PARAMETER_DOUBLE_ARRAY,
-                                   description=PARAMETERS['region_center'][0], read_only=True))
+                                   description=PARAMETERS['region_center'][1].text,
+                                   read_only=True))
         self._names = list(defaults) + ['region_center']
         config, stream_config, rest = configs_from_flat(self._flat())
         self.settings = rest

@@ -50,10 +50,10 @@ def to_rclpy(msg: Any, msgtype: str, cls: type) -> Any:
     """A rosbags message as an instance of the rclpy class ``cls``, via its CDR bytes."""
     from rclpy.serialization import deserialize_message
 
-    from landing_zone.io.bags import typestore
+    from msg_adapters import jazzy_typestore
 
     try:
-        cdr = typestore().serialize_cdr(msg, msgtype)
+        cdr = jazzy_typestore().serialize_cdr(msg, msgtype)
     except Exception as err:  # rosbags' SerdeError and friends: a message this store can't write
         raise BagError(f'cannot convert a {msgtype} for publishing: {err}') from err
     return deserialize_message(bytes(cdr), cls)

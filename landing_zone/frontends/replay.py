@@ -30,7 +30,8 @@ from landing_zone.errors import BagError, ConfigError
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment
     from landing_zone.config import AssessorConfig
-    from landing_zone.frontends.stream import Stream, StreamConfig
+    from landing_zone.config import StreamConfig
+    from landing_zone.frontends.stream import Stream
 
 __all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME',
            'check_bag_topics']

@@ -30,54 +30,26 @@ for every point of a dropped cloud, plus ``nonfinite`` (NaN/Inf rows) and ``dege
 from __future__ import annotations
 
 import collections
-import dataclasses
-import math
-import os
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from landing_zone.errors import ConfigError, InvalidCloudError, InvalidPoseError
+from landing_zone.config import StreamConfig
+from landing_zone.errors import InvalidCloudError, InvalidPoseError
 
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment, Assessor
-    from landing_zone.config import AssessorConfig
 
-__all__ = ['StreamConfig', 'Stream', 'CLOUD_REASONS', 'POINT_REASONS', 'read_params_file',
-           'configs_from_flat', 'read_pose_msg', 'read_cloud_header']
+__all__ = ['Stream', 'CLOUD_REASONS', 'POINT_REASONS', 'POSE_REASONS']
 
 NS = 1_000_000_000
 CLOUD_REASONS = ('malformed', 'wrong_frame', 'out_of_order', 'too_old', 'no_pose', 'queue_full')
 POINT_REASONS = CLOUD_REASONS + ('nonfinite', 'degenerate')
 POSE_REASONS = ('bad_pose', 'wrong_frame')
-
-
-@dataclass
-class StreamConfig:
-    """The stream's timing; the node declares these as parameters of the same names."""
-
-    assessment_period: float = 1.0  # stamp time between assessments [s]
-    pose_tolerance: float = 0.05  # how far a cloud may lie outside the poses' span [s]
-    pose_wait: float = 0.5  # how long (stamp time) a cloud may wait for its pose [s]
-    max_pending: int = 20  # clouds that may wait for their pose at once
-    pose_history: float = 30.0  # span of poses kept for interpolation [s]
-
-    def validate(self) -> None:
-        for name in ('assessment_period', 'pose_history'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f'{name} must be a positive number, got {value!r}')
-        for name in ('pose_tolerance', 'pose_wait'):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f'{name} must be a non-negative number, got {value!r}')
-        if self.max_pending < 1:
-            raise ConfigError(f'max_pending must be >= 1, got {self.max_pending}')
 
 
 @dataclass
@@ -150,6 +122,8 @@ class Stream:
 
     def add_pose_msg(self, msg: Any) -> None:
         """Add a ``geometry_msgs/PoseStamped`` (rclpy or rosbags); bad ones are counted."""
+        from msg_adapters.pose import read_pose_msg
+
         try:
             frame, stamp_ns, position, quaternion = read_pose_msg(msg)
         except InvalidPoseError as err:
@@ -180,10 +154,10 @@ class Stream:
 
     def add_cloud_msg(self, msg: Any) -> None:
         """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted."""
-        from msg_adapters.pointcloud import cloud_to_xyz
+        from msg_adapters.pointcloud import cloud_to_xyz, declared_points, read_cloud_header
 
         self.received_clouds += 1
-        n_points = _declared_points(msg)
+        n_points = declared_points(msg)
         self.received_points += n_points
         try:
             frame, stamp_ns = read_cloud_header(msg)
@@ -391,132 +365,3 @@ class Stream:
         for reason in POSE_REASONS:
             out[f'dropped poses: {reason}'] = str(self.dropped_poses.get(reason, 0))
         return out
-
-
-def read_params_file(path: str | os.PathLike[str], node: str = 'assessor') -> dict[str, Any]:
-    """The parameters of one node in a ROS 2 parameters file, as dotted names.
-
-    The file has the standard layout (``<node>: ros__parameters: {...}``, nested sections
-    flattened with dots as rcl does, or ``/**`` for every node), so the node (``--ros-args
-    --params-file``) and replay (``--params``) read the same file.
-
-    Raises:
-        ConfigError: the file is missing, not YAML, or has no parameters for ``node``.
-    """
-    import yaml
-
-    p = Path(path)
-    try:
-        doc = yaml.safe_load(p.read_text(encoding='utf-8'))
-    except OSError as err:
-        raise ConfigError(f'cannot read parameters file {p}: {err.strerror}') from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f'{p} is not valid YAML: {" ".join(str(err).split())}') from err
-    flat: dict[str, Any] = {}
-    found = False
-    for key in ('/**', node, '/' + node):
-        section = doc.get(key) if isinstance(doc, dict) else None
-        params = section.get('ros__parameters') if isinstance(section, dict) else None
-        if isinstance(params, dict):
-            found = True
-            _flatten(params, '', flat)
-    if not found:
-        raise ConfigError(f'{p} has no "{node}: ros__parameters:" section')
-    return flat
-
-
-def _flatten(tree: dict[str, Any], prefix: str, out: dict[str, Any]) -> None:
-    for key, value in tree.items():
-        name = f'{prefix}{key}'
-        if isinstance(value, dict):
-            _flatten(value, name + '.', out)
-        else:
-            out[name] = value
-
-
-def configs_from_flat(flat: dict[str, Any]) -> tuple[AssessorConfig, StreamConfig,
-                                                     dict[str, Any]]:
-    """Split dotted parameters into the pipeline's config, the stream's and the rest.
-
-    ``region_center`` (empty or two numbers) becomes ``AssessorConfig.center``; names of
-    :class:`StreamConfig` fields go to the stream config; names :meth:`AssessorConfig.to_flat`
-    knows go to the pipeline; anything else (front-end settings such as ``qos_depth``) is
-    returned as it is.
-
-    Raises:
-        ConfigError: a value of the wrong type or out of range.
-    """
-    from landing_zone.config import AssessorConfig
-
-    known = set(AssessorConfig().to_flat())
-    stream_fields = {f.name: f for f in dataclasses.fields(StreamConfig)}
-    core: dict[str, Any] = {}
-    stream = StreamConfig()
-    rest: dict[str, Any] = {}
-    for name, value in flat.items():
-        if name in known:
-            core[name] = value
-        elif name in stream_fields:
-            current = getattr(stream, name)
-            try:
-                setattr(stream, name, type(current)(value))
-            except (TypeError, ValueError) as err:
-                raise ConfigError(f'{name} must be a {type(current).__name__}, got '
-                                  f'{value!r}') from err
-        elif name == 'region_center':
-            center = list(value or [])
-            if len(center) not in (0, 2):
-                raise ConfigError(f'region_center must be empty or two numbers, got {value!r}')
-            core['center'] = [float(c) for c in center] if center else None
-        else:
-            rest[name] = value
-    try:
-        cfg = AssessorConfig.from_flat(core)
-    except (TypeError, ValueError) as err:
-        if isinstance(err, ConfigError):
-            raise
-        raise ConfigError(f'bad parameter value: {err}') from err
-    stream.validate()
-    return cfg, stream, rest
-
-
-def read_pose_msg(msg: Any) -> tuple[str, int, np.ndarray, np.ndarray]:
-    """A ``geometry_msgs/PoseStamped`` as the stream takes it (the node and the bag tools alike).
-
-    Returns:
-        ``(frame_id, stamp_ns, position (3,), unit quaternion (4,) xyzw)``.
-
-    Raises:
-        InvalidPoseError: Not a PoseStamped, non-finite, or a zero quaternion.
-    """
-    from msg_adapters.pose import pose_stamped_to_arrays
-
-    try:
-        frame = msg.header.frame_id
-    except AttributeError as err:
-        raise InvalidPoseError(f'not a geometry_msgs/PoseStamped: {err}') from None
-    return (frame, *pose_stamped_to_arrays(msg))
-
-
-def read_cloud_header(msg: Any) -> tuple[str, int]:
-    """``(frame_id, stamp_ns)`` of a ``sensor_msgs/PointCloud2``: the stamp whose interpolated
-    pose is the cloud's sensor origin.
-
-    Raises:
-        InvalidCloudError: The header is missing or its stamp is not an integer time.
-    """
-    from msg_adapters import stamp_to_ns
-
-    try:
-        return msg.header.frame_id, stamp_to_ns(msg.header.stamp)
-    except (AttributeError, TypeError, ValueError) as err:
-        raise InvalidCloudError(f'bad header ({err})') from None
-
-
-def _declared_points(msg: Any) -> int:
-    """width * height of a cloud message if both are non-negative integers, else 0."""
-    try:
-        n = int(msg.width) * int(msg.height)
-    except (AttributeError, TypeError, ValueError):
-        return 0
-    return n if n >= 0 else 0

@@ -28,7 +28,6 @@ Every failure is a :class:`~landing_zone.errors.BagError` with a one-line messag
 """
 from __future__ import annotations
 
-import functools
 import os
 import shutil
 import tempfile
@@ -37,6 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from landing_zone.errors import BagError
+from msg_adapters import jazzy_typestore
 
 if TYPE_CHECKING:
     from types import TracebackType
@@ -48,7 +48,6 @@ __all__ = [
     'BagMessage',
     'RawMessage',
     'RawBag',
-    'typestore',
     'read_messages',
     'bag_topics',
     'BagWriter',
@@ -71,13 +70,6 @@ class RawMessage(NamedTuple):
     stamp_ns: int  # the bag's log (receive) time
     msgtype: str  # ROS 2 type name
     data: bytes | memoryview  # CDR with its 4-byte encapsulation header
-
-
-@functools.lru_cache(maxsize=1)
-def typestore() -> Typestore:
-    """The rosbags typestore of ROS 2 Jazzy (messages this project writes are built from it)."""
-    from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 def _describe(err: BaseException) -> str:
@@ -139,7 +131,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
             return source.topics()
     from rosbags.highlevel import AnyReader
     try:
-        with AnyReader([target], default_typestore=typestore()) as reader:
+        with AnyReader([target], default_typestore=jazzy_typestore()) as reader:
             return {topic: info.msgtype or '' for topic, info in reader.topics.items()}
     except BagError:
         raise
@@ -176,7 +168,7 @@ def _read_any(path: Path, target: Path, topics: Iterable[str] | None) -> Iterato
     """Messages of a bag AnyReader can open (ROS 2 directory, ROS 1 file)."""
     from rosbags.highlevel import AnyReader
     try:
-        reader = AnyReader([target], default_typestore=typestore())
+        reader = AnyReader([target], default_typestore=jazzy_typestore())
         reader.open()
     except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors here
         raise BagError(f'cannot open bag {path}: {_describe(err)}') from err
@@ -272,7 +264,7 @@ class _McapSource:
 
     def messages(self, wanted: set[str] | None) -> Iterator[BagMessage]:
         """Deserialized messages in log-time order."""
-        jazzy = typestore()
+        jazzy = jazzy_typestore()
         stream = self._reader.iter_messages(topics=sorted(wanted) if wanted else None,
                                             log_time_order=True)
         if wanted is not None and not wanted:
@@ -328,7 +320,7 @@ class _McapSource:
                            f'{channel.message_encoding!r}; only cdr is supported')
         if schema is None:
             # No schema in the file: rosbag2 readers fall back to the installed types.
-            return typestore(), _schemaless_type(self.path, channel)
+            return jazzy_typestore(), _schemaless_type(self.path, channel)
         if schema.id not in self._registered:
             try:
                 self._register(schema)
@@ -399,7 +391,7 @@ class RawBag:
         else:
             from rosbags.highlevel import AnyReader
             try:
-                self._any = AnyReader([self._target], default_typestore=typestore())
+                self._any = AnyReader([self._target], default_typestore=jazzy_typestore())
                 self._any.open()
             except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors
                 self._any = None
@@ -479,7 +471,7 @@ class RawBag:
 def _schemaless_type(path: Path, channel: Any) -> str:
     """The type of a channel without schema, from its rosbag2 metadata if it has one."""
     msgtype = channel.metadata.get('type', '') if hasattr(channel, 'metadata') else ''
-    if msgtype not in typestore().types:
+    if msgtype not in jazzy_typestore().types:
         raise BagError(f'{path}: topic {channel.topic} has no schema and no known type')
     return msgtype
 
@@ -503,7 +495,8 @@ class BagWriter:
         path: Output path; must not exist unless ``overwrite``.
         storage: ``'mcap'`` or ``'sqlite3'``.
         overwrite: Replace an existing file or bag directory at ``path``.
-        types: Typestore whose definitions are written (default: :func:`typestore`).
+        types: Typestore whose definitions are written (default:
+            :func:`msg_adapters.jazzy_typestore`).
     """
 
     def __init__(self, path: str | os.PathLike[str], storage: str = 'mcap', *,
@@ -516,7 +509,7 @@ class BagWriter:
             raise BagError(f'{self.path}: a .mcap path needs storage mcap, not {storage}')
         self.storage = storage
         self.overwrite = overwrite
-        self.types = types if types is not None else typestore()
+        self.types = types if types is not None else jazzy_typestore()
         self._writer: Any = None
         self._tmpdir: Path | None = None
         self._connections: dict[str, Connection] = {}

@@ -602,12 +602,12 @@ def _write_bag(out: Path, config: FlightConfig, scans: list[list[Returns] | None
 
     Messages go in stamp order (a pose just before the cloud of the same stamp).
     """
-    from landing_zone.io.bags import BagWriter, typestore
-    from msg_adapters import MessageTypes, make_header
+    from landing_zone.io.bags import BagWriter
+    from msg_adapters import MessageTypes, jazzy_typestore, make_header
     from msg_adapters.pointcloud import make_cloud, points_to_structured
     from msg_adapters.pose import make_pose_stamped
 
-    types = MessageTypes.rosbags(typestore())
+    types = MessageTypes.rosbags(jazzy_typestore())
     tilt = math.radians(config.tilt)
     half = 0.5 * config.size
     n_clouds = n_points = on_site = 0

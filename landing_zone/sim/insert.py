@@ -20,8 +20,8 @@ The pieces:
   it the ground.
 * :func:`insert_obstacles`: the bag tool. The sensor origin of a cloud is the pose topic
   interpolated at the cloud's ``header.stamp``, with the stream's own message decoding
-  (:func:`~landing_zone.frontends.stream.read_pose_msg`,
-  :func:`~landing_zone.frontends.stream.read_cloud_header`) and interpolation
+  (:func:`~msg_adapters.pose.read_pose_msg`,
+  :func:`~msg_adapters.pointcloud.read_cloud_header`) and interpolation
   (:class:`~landing_zone.poses.PoseBuffer`, same tolerance), as the node does.
   The output bag is the input copied message by message as CDR bytes
   (:class:`~landing_zone.io.bags.RawBag`); in a cloud with altered returns only the ``x``, ``y``,
@@ -665,8 +665,8 @@ def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points'
     """All returns of a flight with their sensor origins, as the node would integrate them.
 
     Poses and clouds are decoded as the stream decodes them
-    (:func:`~landing_zone.frontends.stream.read_pose_msg`,
-    :func:`~landing_zone.frontends.stream.read_cloud_header`); a cloud's origin is the pose
+    (:func:`~msg_adapters.pose.read_pose_msg`,
+    :func:`~msg_adapters.pointcloud.read_cloud_header`); a cloud's origin is the pose
     interpolated at its header stamp by a
     :class:`~landing_zone.poses.PoseBuffer` holding every pose, with the stream's tolerance
     (``StreamConfig.pose_tolerance``) at both ends. Clouds and poses in other frames are left
@@ -679,7 +679,9 @@ def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points'
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
     from landing_zone.poses import PoseBuffer
     from landing_zone.frontends.replay import check_bag_topics
-    from landing_zone.frontends.stream import StreamConfig, read_cloud_header, read_pose_msg
+    from landing_zone.config import StreamConfig
+    from msg_adapters.pointcloud import read_cloud_header
+    from msg_adapters.pose import read_pose_msg
 
     bag = Path(bag)
     check_bag_topics(bag, points_topic, pose_topic)
@@ -767,7 +769,7 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     """
     from landing_zone.io.bags import BagWriter, RawBag
     from landing_zone.errors import InvalidCloudError, InvalidPoseError
-    from landing_zone.frontends.stream import read_cloud_header
+    from msg_adapters.pointcloud import read_cloud_header
 
     t_start = time.perf_counter()
     bag, out = Path(bag), Path(out)
