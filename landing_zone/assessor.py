@@ -279,6 +279,9 @@ class Assessor:
         # how many tiles the padding of a tile's input reaches into on each side
         self._reach = int(math.ceil(cfg.tiles.padding / self.tile_vox))
         self.model, self.model_metadata, self.model_path = self._load_model(model)
+        from landing_zone.judging.inference import Predictor
+        # owns the inference copy and torch's thread count until close()
+        self._predictor = Predictor(self.model)
         side = self.tile_vox + 2 * cfg.tiles.padding
         if int(self.model.config.input_size) != side:
             raise ModelError(
@@ -302,7 +305,8 @@ class Assessor:
     # -- set-up -----------------------------------------------------------------------------
 
     def _load_model(self, model: Any) -> tuple[Any, dict[str, Any], Path | None]:
-        from landing_zone.judging.net import SafetyNet, load_model
+        from landing_zone.judging.checkpoint import load_model
+        from landing_zone.judging.net import SafetyNet
 
         if isinstance(model, SafetyNet):
             return model.eval(), {}, None
@@ -441,7 +445,6 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
-        from landing_zone.judging.net import predict
         from landing_zone.judging.tiles import tiles_from_counts
 
         with self._assess_lock:
@@ -456,8 +459,8 @@ class Assessor:
             p = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
-                p[batch.valid] = predict(self.model, batch.inputs[batch.valid],
-                                         batch_size=self.config.model.batch_size)
+                p[batch.valid] = self._predictor(batch.inputs[batch.valid],
+                                                 batch_size=self.config.model.batch_size)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
@@ -496,6 +499,18 @@ class Assessor:
         """Judge every tile again at the next pass (after a change of the tiles' settings)."""
         with self._map_lock:
             self.map.mark_tile_size(self.tile_vox)
+
+    def close(self) -> None:
+        """Release what the assessor holds beyond memory: the map's worker threads and the
+        predictor's hold on torch's thread count. The assessor is not used after this."""
+        self.map.close()
+        self._predictor.close()
+
+    def __enter__(self) -> Assessor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @property
     def last(self) -> Assessment | None:

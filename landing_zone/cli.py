@@ -262,7 +262,8 @@ def train(
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec).')] = None,
 ) -> None:
-    from landing_zone.judging.net import DEFAULT_SPEC, read_metadata
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.judging.net import DEFAULT_SPEC
     from landing_zone.learn.train import TrainConfig, train as run_train
 
     if arch is None:

@@ -25,7 +25,8 @@ def main() -> int:
 
     from landing_zone.assessor import default_model_path
     from landing_zone.learn.baselines.plane import PlaneResiduals
-    from landing_zone.judging.net import load_model, predict
+    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.inference import predict
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.obstacles import models
     from landing_zone.sim.scene import PatchConfig, simulate_patch

@@ -17,7 +17,8 @@ import numpy as np
 
 from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
-from landing_zone.judging.net import load_model, predict, read_metadata, save_model
+from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+from landing_zone.judging.inference import predict
 from landing_zone.sim.dataset import SceneDataset
 from landing_zone.learn.train import ScenePack, roc_auc, split_scenes, voxelize
 

@@ -7,7 +7,9 @@ import torch
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
-from landing_zone.judging.net import load_model, predict, save_model, SafetyNet, SafetyNetConfig
+from landing_zone.judging.checkpoint import load_model, save_model
+from landing_zone.judging.inference import predict
+from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from landing_zone.sim.dataset import Scene
 from landing_zone.judging.tiles import scene_to_input
 from landing_zone.learn.train import (AugmentedVolumes, EpochSampler, ScenePack, TrainConfig,
@@ -274,20 +276,21 @@ def test_bad_data_and_settings_are_refused(tmp_path):
 
 
 @pytest.mark.slow
-def test_training_needs_only_torch_numpy_numba_scipy_sklearn(tmp_path):
-    """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn)."""
+def test_training_needs_only_torch_numpy_numba_scipy_sklearn_safetensors_tqdm(tmp_path):
+    """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn, and
+    safetensors and tqdm, which the package requires: no hand-made copies of them)."""
     import subprocess
     import sys
     from pathlib import Path
     script = f'''
 import sys
-for name in ('typer', 'tqdm', 'safetensors', 'optuna', 'rclpy', 'rosbags', 'matplotlib',
-             'trimesh', 'embreex', 'mcap', 'rich'):
+for name in ('typer', 'optuna', 'rclpy', 'rosbags', 'matplotlib', 'trimesh', 'embreex', 'mcap',
+             'rich'):
     sys.modules[name] = None
 sys.path.insert(0, {str(Path(__file__).parent)!r})
 from test_train import toy_scenes, quick_config
 from landing_zone.learn.train import train
-from landing_zone.judging.net import load_model
+from landing_zone.judging.checkpoint import load_model
 train(toy_scenes(8, 0), {str(tmp_path / 'm.safetensors')!r}, quick_config(), progress=True)
 print(load_model({str(tmp_path / 'm.safetensors')!r})[0].spec)
 '''

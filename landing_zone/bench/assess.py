@@ -28,9 +28,11 @@ import torch
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.mapping.density_map import DensityMap
-from landing_zone.judging.net import (DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig,
-                                      bf16_supported, load_model, predict)
-from landing_zone.judging.tiles import extract_tiles, scene_to_input, widen_tiles
+from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.inference import Predictor, bf16_supported
+from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
+from landing_zone.judging.tiles import (CountBuffers, PatchVoxelizer, extract_tiles,
+                                        widen_tiles)
 
 from landing_zone.bench.integrate import SENSOR, make_batches
 
@@ -70,8 +72,9 @@ def _network_rows(net: SafetyNet, inputs: np.ndarray, repeats: int, device: str
     if device == 'cuda' or bf16_supported():
         variants.append(('bf16', True))
     for precision, cl in variants:
-        med, best = _times(lambda: predict(net, inputs, 256, precision, channels_last=cl),
-                           repeats)
+        with Predictor(net) as predictor:  # one inference copy per mode, as the assessor keeps
+            med, best = _times(lambda: predictor(inputs, 256, precision, channels_last=cl),
+                               repeats)
         rows.append((f'{precision} {"channels-last" if cl else "default layout"}', med, best))
     return rows
 
@@ -108,9 +111,10 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     print(f'map: 20 x 20 x 4 m at 5 cm, {batches} batches of 10,000 returns (the integrate '
           f'scene); torch threads {torch.get_num_threads()}, native bf16: {bf16_supported()}')
 
-    ext_med, ext_best = _times(lambda: extract_tiles(dmap, tcfg), repeats)
+    buffers = CountBuffers()
+    ext_med, ext_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers), repeats)
     cnt_med, _ = _times(dmap.counts, repeats)
-    batch = extract_tiles(dmap, tcfg)
+    batch = extract_tiles(dmap, tcfg, buffers=buffers)
     n = len(batch)
     results.update(tiles=n, valid_tiles=int(batch.valid.sum()), extract_s=ext_med,
                    extract_counts_s=cnt_med)
@@ -158,11 +162,14 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         mode = results[spec]['best']
         prec, cl = mode.split()[0], 'channels-last' in mode
 
-        def update(net: SafetyNet = net, prec: str = prec, cl: bool = cl) -> None:
-            sub = extract_tiles(dmap, tcfg, wide)
-            predict(net, sub.inputs, 256, prec, channels_last=cl)
+        predictor = Predictor(net)
+
+        def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl) -> None:
+            sub = extract_tiles(dmap, tcfg, wide, buffers=buffers)
+            predictor(sub.inputs, 256, prec, channels_last=cl)
 
         med, best = _times(update, repeats)
+        predictor.close()
         results['dirty'][spec] = med
         print(f'  {spec}: {med:.3f} s ({best:.3f}) against {results[spec]["map_s"]:.3f} s '
               'for the whole map')
@@ -178,7 +185,8 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     if not bf16_supported():
         print('  bf16 skipped: no native bf16 on this CPU (it would fall back to slow kernels)')
     pts = make_batches(1, seed + 2000, batch=26_000, half=2.5)[0]
-    med, best = _times(lambda: scene_to_input(pts, SENSOR, yaw=0.4, z_shift=0.1), 5)
+    voxelizer = PatchVoxelizer()
+    med, best = _times(lambda: voxelizer(pts, SENSOR, yaw=0.4, z_shift=0.1), 5)
     results['pipeline_samples_per_s'] = 1.0 / med
     print(f'data pipeline (re-voxelize a 26k-return patch, one process): {1 / med:.0f} '
           f'samples/s ({1 / best:.0f})')

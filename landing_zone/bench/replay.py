@@ -40,7 +40,8 @@ def _model(tmp: Path, seed: int) -> tuple[Path, str]:
     except ModelError:
         import torch
 
-        from landing_zone.judging.net import SafetyNet, SafetyNetConfig, save_model
+        from landing_zone.judging.checkpoint import save_model
+        from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 
         torch.manual_seed(seed)
         path = tmp / 'untrained.safetensors'

@@ -145,6 +145,11 @@ class AssessorNode(Node):
             f'frame {config.frame_id!r}, {mode}; model {self.assessor.model_path} '
             f'({self.assessor.model.config.spec})')
 
+    def destroy_node(self) -> None:
+        """Destroy the node, then release the assessor's threads."""
+        super().destroy_node()
+        self.assessor.close()
+
     # -- parameters -------------------------------------------------------------------------
 
     def _flat(self, override: dict[str, Any] | None = None) -> dict[str, Any]:

@@ -222,6 +222,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         if writer is not None:
             writer.abort()
         raise
+    finally:
+        assessor.close()  # its threads; the results stay readable
     loop = time.perf_counter() - t_loop
     result = assessor.last
     assert result is not None

@@ -27,8 +27,6 @@ network is trained on what it will see.
 from __future__ import annotations
 
 import math
-import threading
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -50,6 +48,8 @@ __all__ = [
     'tiles_from_counts',
     'extract_tiles',
     'scene_to_input',
+    'CountBuffers',
+    'PatchVoxelizer',
     'PATCH_Z_MARGIN',
 ]
 
@@ -289,14 +289,29 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: Sequence[int],
                      n_returns=nret, valid=valid)
 
 
+class CountBuffers:
+    """The hit and pass arrays one caller reads a map's counts into, reused while the box keeps
+    its shape: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read.
+    Not thread-safe: one per thread."""
+
+    def __init__(self) -> None:
+        self._bufs: tuple[np.ndarray, np.ndarray] | None = None
+
+    def get(self, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Two uint32 arrays of ``shape`` (the same ones as last time if it is unchanged)."""
+        if self._bufs is None or self._bufs[0].shape != shape:
+            self._bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
+        return self._bufs
+
+
 def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
-                  tiles: np.ndarray | None = None) -> TileBatch:
+                  tiles: np.ndarray | None = None,
+                  buffers: CountBuffers | None = None) -> TileBatch:
     """Tiles of a density map (see :func:`tiles_from_counts`).
 
     Only the counts of the bounding box of the requested tiles (padding included, clipped to
-    the map's window) are read, so re-assessing a few dirty tiles reads little. The count
-    buffers are kept per map between calls (not thread-safe for one map: call it from one
-    thread per map, as the assessor does).
+    the map's window) are read, so re-assessing a few dirty tiles reads little. Into
+    ``buffers`` when given (a caller that extracts again and again), else into fresh arrays.
 
     Args:
         dmap: the map.
@@ -316,46 +331,47 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     box_lo = np.clip(box_lo, lo, hi)
     box_hi = np.clip(box_hi, box_lo, hi)
     shape = tuple(int(v) for v in box_hi - box_lo)
-    bufs = _count_buffers.get(dmap)
-    if bufs is None or bufs[0].shape != shape:
-        bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
-        _count_buffers[dmap] = bufs
+    bufs = buffers.get(shape) if buffers is not None else None
     h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
     return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx)
 
 
-# The count arrays of the last read of each map, reused while the box keeps its shape: a full
-# map is 2 x 51 MB, and fresh memory costs its page faults on every assessment.
-_count_buffers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+class PatchVoxelizer:
+    """Re-voxelizes simulated patches (:func:`scene_to_input`) into small maps it owns.
 
+    One 3 x 3-tile map per voxel size and height, cleared and reused across patches, because
+    building one costs as much as a fifth of integrating a patch. Not thread-safe: one per
+    thread or process (a training set makes its own in each loader worker).
+    """
 
-# One small map per thread (DataLoader workers are processes, each with its own), reused across
-# patches because building one costs as much as a fifth of integrating a patch.
-_patch_maps = threading.local()
+    def __init__(self) -> None:
+        self._maps: dict[tuple[float, int, int], DensityMap] = {}
 
+    def _map(self, voxel_size: float, tile_vox: int, nz: int) -> DensityMap:
+        from landing_zone.mapping.density_map import DensityMap
 
-def _patch_map(voxel_size: float, tile_vox: int, nz: int) -> DensityMap:
-    from landing_zone.mapping.density_map import DensityMap
+        key = (voxel_size, tile_vox, nz)
+        dmap = self._maps.get(key)
+        if dmap is None:
+            cfg = MapConfig(voxel_size=voxel_size, size_xy=3 * tile_vox * voxel_size,
+                            size_z=nz * voxel_size, z_below=0.0, recenter_distance=0.0)
+            # one patch is too small to be worth the map's two-thread split
+            dmap = DensityMap(cfg, parallel=False, tile_vox=tile_vox)
+            self._maps[key] = dmap
+        else:
+            dmap.clear()
+        return dmap
 
-    key = (voxel_size, tile_vox, nz)
-    cache = getattr(_patch_maps, 'maps', None)
-    if cache is None:
-        cache = _patch_maps.maps = {}
-    dmap = cache.get(key)
-    if dmap is None:
-        cfg = MapConfig(voxel_size=voxel_size, size_xy=3 * tile_vox * voxel_size,
-                        size_z=nz * voxel_size, z_below=0.0, recenter_distance=0.0)
-        # one patch is too small to be worth the map's two-thread split
-        dmap = DensityMap(cfg, parallel=False, tile_vox=tile_vox)
-        cache[key] = dmap
-    else:
-        dmap.clear()
-    return dmap
+    def __call__(self, points: np.ndarray, origins: np.ndarray,
+                 map_cfg: MapConfig | None = None, tile_cfg: TileConfig | None = None,
+                 yaw: float = 0.0, z_shift: float = 0.0) -> TileBatch:
+        """:func:`scene_to_input` on this voxelizer's maps."""
+        return scene_to_input(points, origins, map_cfg, tile_cfg, yaw, z_shift, voxelizer=self)
 
 
 def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
                    tile_cfg: TileConfig | None = None, yaw: float = 0.0,
-                   z_shift: float = 0.0) -> TileBatch:
+                   z_shift: float = 0.0, voxelizer: PatchVoxelizer | None = None) -> TileBatch:
     """Re-voxelize one simulated patch and extract its centre tile, as the deployed map would.
 
     The patch frame has the tile centred at (0, 0) with the ground near z = 0. Points and
@@ -371,6 +387,8 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
         tile_cfg: tiling parameters; default TileConfig().
         yaw: rotation about the tile's vertical axis [rad] (augmentation).
         z_shift: vertical shift [m] (augmentation).
+        voxelizer: whose small map to reuse (callers that voxelize many patches); default a
+            fresh map.
 
     Returns:
         A :class:`TileBatch` with one tile; ``index`` is (0, 0), ``centers`` (0, 0) and
@@ -391,7 +409,7 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
     # stays the same. Rays outside the window cannot change the extracted cube.
     reach = tcfg.tile_size / 2 + (tcfg.padding + 1) * vs + PATCH_Z_MARGIN
     kz = int(math.ceil(reach / vs))
-    dmap = _patch_map(vs, tv, 2 * kz)
+    dmap = (voxelizer if voxelizer is not None else PatchVoxelizer())._map(vs, tv, 2 * kz)
     dmap.set_lo(np.array([-tv, -tv, -kz + int(round(z_shift / vs))], np.int64))
     c, s = math.cos(yaw), math.sin(yaw)
     offset = np.array([tcfg.tile_size / 2, tcfg.tile_size / 2, z_shift])

@@ -41,7 +41,9 @@ import torch
 from landing_zone.learn.calibration import Reliability, reliability
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.judging.net import SafetyNet, load_model, predict
+from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.inference import predict
+from landing_zone.judging.net import SafetyNet
 
 __all__ = ['Method', 'CNNMethod', 'MethodResult', 'evaluate_methods', 'markdown_table',
            'results_json', 'class_models', 'evaluate', 'evaluate_scenes', 'confident_mistakes']

@@ -44,9 +44,10 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
-from landing_zone.judging.net import (DEFAULT_SPEC, SafetyNet, SafetyNetConfig, bf16_supported,
-                                      load_model, predict, read_metadata, save_model)
-from landing_zone.judging.tiles import scene_to_input, tile_voxels
+from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+from landing_zone.judging.inference import bf16_supported, predict
+from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
+from landing_zone.judging.tiles import PatchVoxelizer, tile_voxels
 
 __all__ = ['TrainConfig', 'ScenePack', 'AugmentedVolumes', 'EpochSampler', 'split_scenes',
            'voxelize', 'train', 'state_path', 'log_path', 'roc_auc']
@@ -246,6 +247,11 @@ class AugmentedVolumes(Dataset):
         self.z_shift = float(z_shift)
         self.yaw = bool(yaw)
         self.edge_drop = float(edge_drop)
+        self._voxelizer: PatchVoxelizer | None = None  # made where the samples are drawn
+
+    def __getstate__(self) -> dict[str, Any]:
+        # a loader worker builds its own voxelizer; the maps are not worth pickling
+        return {**self.__dict__, '_voxelizer': None}
 
     def __len__(self) -> int:
         return len(self.pack)
@@ -276,7 +282,9 @@ class AugmentedVolumes(Dataset):
         pts, org = self.pack.scene(scene)
         if cuts:
             pts, org = cut_context(pts, org, cuts)
-        batch = scene_to_input(pts, org, self.map_cfg, self.tile_cfg, yaw=yaw, z_shift=dz)
+        if self._voxelizer is None:
+            self._voxelizer = PatchVoxelizer()
+        batch = self._voxelizer(pts, org, self.map_cfg, self.tile_cfg, yaw=yaw, z_shift=dz)
         x = torch.from_numpy(batch.inputs[0])  # (1, S, S, S)
         return x, torch.tensor(float(self.pack.labels[scene]))
 

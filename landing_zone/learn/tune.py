@@ -109,7 +109,8 @@ def tune(data: str | os.PathLike, config: TuneConfig | None = None,
     """
     import optuna
 
-    from landing_zone.judging.net import SafetyNet, SafetyNetConfig, parse_spec
+    from landing_zone.judging.net import SafetyNet, SafetyNetConfig
+    from landing_zone.judging.spec import parse_spec
     from landing_zone.learn.train import TrainConfig, train
 
     cfg = config if config is not None else TuneConfig()

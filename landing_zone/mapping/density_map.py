@@ -20,7 +20,7 @@ import numpy as np
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
 from landing_zone.mapping.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
-                                           prepare_rays, run_parts, trace_rays)
+                                           PartRunner, prepare_rays, run_parts, trace_rays)
 
 __all__ = ['DensityMap', 'IntegrationStats', 'COUNT_MAX']
 
@@ -318,6 +318,8 @@ class DensityMap:
                               np.uint8)
         self._used = np.zeros(self._nparts, np.int64)
         self.parallel = bool(parallel)
+        # the helper threads of the parallel parts, ended by close()
+        self._runner: PartRunner | None = PartRunner() if self.parallel else None
         # XY cell (voxels) the batch is counting-sorted by before the walk; 0 keeps input order
         self.sort_tile = SORT_TILE
         self.lo = np.zeros(3, np.int64)
@@ -411,7 +413,7 @@ class DensityMap:
             trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
                        self._passes, self._cdir, self._pool, self._pool_limit, self._used, resume,
                        self._dirty_parts, self._dirty_lo, self.tile_vox, counters,
-                       parallel=self.parallel and nvalid >= _PARALLEL_MIN_RAYS)
+                       runner=self._runner if nvalid >= _PARALLEL_MIN_RAYS else None)
             if np.all(resume >= 2 * nvalid):
                 break
             # a part stopped before a ray that might not find a free cold block: grow, resume
@@ -625,7 +627,7 @@ class DensityMap:
             chunks = self._read_chunks(out_h.size)
             run_parts(_gather_hot, chunks, (chunks, self._hits, self._passes, self._dims,
                                             self.lo, self._n, q_lo, q_n, out_h, out_p),
-                      self.parallel)
+                      self._runner)
             if self._used.any():
                 _gather_cold(self._cdir, self._pool, self._row_part, self._dims, self.lo,
                              self._n, q_lo, q_n, out_h, out_p)
@@ -646,7 +648,7 @@ class DensityMap:
         if out.size:
             chunks = self._read_chunks(out.size)
             run_parts(_density_hot, chunks, (chunks, self._hits, self._passes, self._dims,
-                                             self.lo, self._n, q_lo, q_n, out), self.parallel)
+                                             self.lo, self._n, q_lo, q_n, out), self._runner)
         return out
 
     def observed(self, lo: Sequence[int] | None = None,
@@ -660,8 +662,14 @@ class DensityMap:
         if out.size:
             chunks = self._read_chunks(out.size)
             run_parts(_observed_hot, chunks, (chunks, self._hits, self._passes, self._dims,
-                                              self.lo, self._n, q_lo, q_n, out), self.parallel)
+                                              self.lo, self._n, q_lo, q_n, out), self._runner)
         return out
+
+    def close(self) -> None:
+        """End the helper threads; the map still works after this, on the caller's thread until
+        a parallel step starts them again."""
+        if self._runner is not None:
+            self._runner.close()
 
     def clear(self) -> None:
         """Forget every count (the window stays where it is)."""

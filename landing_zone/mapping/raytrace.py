@@ -33,7 +33,7 @@ only when one of its counters first wraps past 255. Totals saturate at 65535.
 The map is split into ``PARTS`` slabs along storage y (whole brick rows each). A part walks the
 piece of every ray inside its slab and touches only its own bricks and its own cold pool, so
 parts can run on different threads with no atomics and no races (numba has no atomics). Threads
-take parts from a shared counter (:func:`run_parts`), so a thread the OS holds back on a busy
+take parts from a shared counter (:class:`PartRunner`), so a thread the OS holds back on a busy
 machine delays nothing: the others take its share.
 """
 from __future__ import annotations
@@ -41,6 +41,7 @@ from __future__ import annotations
 import itertools
 import math
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import numba as nb
@@ -53,6 +54,7 @@ __all__ = [
     'COUNT_MAX',
     'MAX_LATTICE_COORD',
     'SORT_TILE',
+    'PartRunner',
     'prepare_rays',
     'run_parts',
     'trace_rays',
@@ -527,7 +529,7 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
 
 def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes, cdir, pool,
                pool_limit, used, resume, dirty, dirty_lo, tile_vox, counters,
-               parallel: bool = True) -> None:
+               runner: PartRunner | None = None) -> None:
     """Walk the prepared rays into the storage arrays (see :class:`DensityMap`).
 
     Each part stops before a ray that could exhaust its cold pool and leaves its position in
@@ -540,7 +542,7 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
     args = (uo, up, order, nvalid, box_lo, box_hi, yint, box_lo, tables[0], tables[1],
             tables[2], hits, passes, cdir, pool, pool_limit, used, resume, dirty, dirty_lo,
             tile_vox, counters)
-    run_parts(_trace_part, yint.shape[0], args, parallel)
+    run_parts(_trace_part, yint.shape[0], args, runner)
 
 
 # Parts run on Python threads that pull them from a shared counter while the kernel releases
@@ -548,7 +550,6 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
 # shared 2-core machine with the integrate scene: 0.57M against 0.76M returns/s with another
 # process busy on one core (its static split waits for the descheduled thread, and one call
 # with 10k trivial rays took 16 ms against 0.7 ms), and never faster, so it went.
-_EXECUTOR = None
 
 
 class _Batch:
@@ -579,32 +580,60 @@ class _Batch:
                     self.all_done.set()
 
 
-def run_parts(kernel, nparts: int, args: tuple, parallel: bool = True) -> None:
-    """Call ``kernel(part, *args)`` for every part, on up to numba's number of threads.
+class PartRunner:
+    """The helper threads that run the parts of a kernel beside the caller's thread.
 
-    The kernel must be compiled with ``nogil=True`` and parts must not write the same memory.
-    Threads (the caller's included) take the next part from a shared counter, so a thread the
-    OS holds back does not hold up the others: a helper that starts late finds nothing left.
+    It owns its pool (started on first use, numba's thread count less the caller) and ends it
+    in :meth:`close`; each :class:`~landing_zone.mapping.density_map.DensityMap` that runs in
+    parallel has one. Threads (the caller's included) take the next part from a shared counter,
+    so a thread the OS holds back does not hold up the others: a helper that starts late finds
+    nothing left.
     """
-    threads = min(nb.get_num_threads(), nparts) if parallel else 1
-    if threads <= 1:
+
+    def __init__(self) -> None:
+        self._pool: ThreadPoolExecutor | None = None
+        self._lock = threading.Lock()
+
+    def run(self, kernel, nparts: int, args: tuple) -> None:
+        """Call ``kernel(part, *args)`` for every part, on up to numba's number of threads.
+
+        The kernel must be compiled with ``nogil=True`` and parts must not write the same
+        memory.
+        """
+        threads = min(nb.get_num_threads(), nparts)
+        if threads <= 1:
+            for part in range(nparts):
+                kernel(part, *args)
+            return
+        batch = _Batch(kernel, nparts, args)
+        pool = self._executor()
+        for _ in range(threads - 1):
+            pool.submit(batch.work)
+        batch.work()
+        batch.all_done.wait()
+        if batch.error is not None:
+            raise batch.error
+
+    def _executor(self) -> ThreadPoolExecutor:
+        with self._lock:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(
+                    max_workers=max(nb.config.NUMBA_NUM_THREADS - 1, 1),
+                    thread_name_prefix='raytrace')
+            return self._pool
+
+    def close(self) -> None:
+        """End the helper threads (a later :meth:`run` starts new ones)."""
+        with self._lock:
+            pool, self._pool = self._pool, None
+        if pool is not None:
+            pool.shutdown(wait=True)
+
+
+def run_parts(kernel, nparts: int, args: tuple, runner: PartRunner | None = None) -> None:
+    """Call ``kernel(part, *args)`` for every part: on ``runner``'s threads, or in turn."""
+    if runner is None:
         for part in range(nparts):
             kernel(part, *args)
         return
-    batch = _Batch(kernel, nparts, args)
-    pool = _executor()
-    for _ in range(threads - 1):
-        pool.submit(batch.work)
-    batch.work()
-    batch.all_done.wait()
-    if batch.error is not None:
-        raise batch.error
-
-
-def _executor():
-    global _EXECUTOR
-    if _EXECUTOR is None:
-        from concurrent.futures import ThreadPoolExecutor
-        _EXECUTOR = ThreadPoolExecutor(max_workers=max(nb.config.NUMBA_NUM_THREADS - 1, 1),
-                                       thread_name_prefix='raytrace')
-    return _EXECUTOR
+    runner.run(kernel, nparts, args)
