@@ -6,9 +6,9 @@ Reading (:func:`read_messages`, :func:`bag_topics`) accepts
   ``rosbags.highlevel.AnyReader``;
 * a ``.db3`` file inside such a directory (the directory is read);
 * a ``.mcap`` file, by itself (what :class:`BagWriter` writes for a ``*.mcap`` path, the file
-  inside a ``ros2 bag record -s mcap`` directory, Foxglove recordings, ...), read with the
-  ``mcap`` package and deserialized with rosbags from the schemas embedded in the file:
-  rosbags 0.11's reader needs the ``metadata.yaml`` of a bag directory, which a lone file lacks;
+  inside a ``ros2 bag record -s mcap`` directory, Foxglove recordings, ...), which AnyReader
+  opens too, deserializing with the schemas embedded in the file (an unindexed file must hold
+  its messages in log-time order, as a recorder writes them);
 * a ROS 1 ``.bag`` file, whose types AnyReader maps to their ROS 2 names
   (``sensor_msgs/msg/PointCloud2``, headers with ``builtin_interfaces/msg/Time`` stamps).
 
@@ -23,7 +23,7 @@ Writing (:class:`BagWriter`) produces a ROS 2 bag with MCAP storage, version 9. 
 record live inside it; ``ros2 bag play SITE.mcap`` and :func:`read_messages` read it); any other
 path becomes a rosbag2 directory with ``metadata.yaml``, in MCAP or SQLite3 storage.
 
-rosbags and mcap are imported inside the functions, so importing this module costs nothing.
+rosbags is imported inside the functions, so importing this module costs little.
 Every failure is a :class:`~landing_zone.errors.BagError` with a one-line message.
 """
 from __future__ import annotations
@@ -78,20 +78,20 @@ def _describe(err: BaseException) -> str:
     return text if len(text) <= 200 else text[:197] + '...'
 
 
-def _kind(path: Path) -> tuple[str, Path]:
-    """How to read a bag path: ``('any', path)`` for AnyReader or ``('mcap', file)``."""
+def _target(path: Path) -> Path:
+    """The path AnyReader opens for a bag path (a ``.db3`` file: its bag directory)."""
     if not path.exists():
         raise BagError(f'bag not found: {path}')
     if path.is_dir():
         if not (path / 'metadata.yaml').exists():
             raise BagError(f'{path} is a directory without metadata.yaml, not a ROS 2 bag')
-        return 'any', path
+        return path
     if path.suffix == '.bag':
-        return 'any', path
+        return path
     if path.suffix == '.mcap':
-        return 'mcap', path
+        return path
     if path.suffix == '.db3' and (path.parent / 'metadata.yaml').exists():
-        return 'any', path.parent
+        return path.parent
     if path.suffix == '.db3':
         raise BagError(f'{path} is a .db3 file without the metadata.yaml of its bag directory; '
                        'pass the bag directory')
@@ -125,10 +125,7 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
         BagError: The bag is missing, not a bag, or unreadable.
     """
     path = Path(path)
-    kind, target = _kind(path)
-    if kind == 'mcap':
-        with _McapSource(target) as source:
-            return source.topics()
+    target = _target(path)
     from rosbags.highlevel import AnyReader
     try:
         with AnyReader([target], default_typestore=jazzy_typestore()) as reader:
@@ -155,13 +152,7 @@ def read_messages(path: str | os.PathLike[str],
             requested topic. Raised on the first ``next()``, as the function is a generator.
     """
     path = Path(path)
-    kind, target = _kind(path)
-    if kind == 'mcap':
-        with _McapSource(target) as source:
-            wanted = _check_topics(path, source.topics(), topics)
-            yield from source.messages(wanted)
-        return
-    yield from _read_any(path, target, topics)
+    yield from _read_any(path, _target(path), topics)
 
 
 def _read_any(path: Path, target: Path, topics: Iterable[str] | None) -> Iterator[BagMessage]:
@@ -190,163 +181,6 @@ def _read_any(path: Path, target: Path, topics: Iterable[str] | None) -> Iterato
         reader.close()
 
 
-class _McapSource:
-    """A lone ``.mcap`` file: the mcap package reads records, rosbags deserializes CDR."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self._file: Any = None
-        self._reader: Any = None
-        self._store: Typestore | None = None
-        self._registered: set[int] = set()
-
-    def __enter__(self) -> _McapSource:
-        from mcap.reader import make_reader
-        try:
-            self._file = self.path.open('rb')
-            self._reader = make_reader(self._file)
-        except Exception as err:  # OSError, mcap's InvalidMagic / EndOfFile, struct errors
-            self.close()
-            raise BagError(f'cannot open bag {self.path}: {_describe(err)}') from err
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self._file is not None:
-            self._file.close()
-            self._file = None
-
-    def topics(self) -> dict[str, str]:
-        """``{topic: schema name}`` from the summary, or from a scan when there is none."""
-        try:
-            summary = self._reader.get_summary()
-            if summary is not None:
-                return {c.topic: (summary.schemas[c.schema_id].name if c.schema_id else '')
-                        for c in summary.channels.values()}
-            from mcap.records import Channel, Schema
-            from mcap.stream_reader import StreamReader
-            self._file.seek(0)
-            schemas: dict[int, str] = {}
-            found: dict[str, str] = {}
-            for record in StreamReader(self._file).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record.name
-                elif isinstance(record, Channel):
-                    found[record.topic] = schemas.get(record.schema_id, '')
-            return found
-        except Exception as err:  # mcap raises McapError, KeyError, struct.error on corruption
-            raise BagError(f'cannot read bag {self.path}: {_describe(err)}') from err
-
-    def _register(self, schema: Any) -> None:
-        """Add the types of a schema (with its embedded dependencies) to the typestore."""
-        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-        if self._store is None:
-            self._store = get_typestore(Stores.EMPTY)
-        text = schema.data.decode()
-        if schema.encoding == 'ros2msg':
-            types = get_types_from_msg(text, schema.name)
-        elif schema.encoding == 'ros2idl':
-            # rosbag2 concatenates the IDL of every dependency behind '=' * 80 separators.
-            sep = '=' * 80 + '\n'
-            types = {}
-            for part in (text.split(sep)[1:] if text.startswith(sep + 'IDL: ') else [text]):
-                types.update(get_types_from_idl(part.split('\n', 1)[1] if
-                                                part.startswith('IDL: ') else part))
-        else:
-            raise BagError(f'{self.path}: schema {schema.name} has encoding {schema.encoding!r}; '
-                           'only ros2msg and ros2idl are supported')
-        known = set(self._store.fielddefs)
-        self._store.register({k: v for k, v in types.items() if k not in known})
-        self._registered.add(schema.id)
-
-    def messages(self, wanted: set[str] | None) -> Iterator[BagMessage]:
-        """Deserialized messages in log-time order."""
-        jazzy = jazzy_typestore()
-        stream = self._reader.iter_messages(topics=sorted(wanted) if wanted else None,
-                                            log_time_order=True)
-        if wanted is not None and not wanted:
-            return
-        while True:
-            try:
-                schema, channel, message = next(stream)
-                if channel.message_encoding != 'cdr':
-                    raise BagError(f'{self.path}: topic {channel.topic} has message encoding '
-                                   f'{channel.message_encoding!r}; only cdr is supported')
-                if schema is None:
-                    # No schema in the file: rosbag2 readers fall back to the installed types.
-                    store, msgtype = jazzy, _schemaless_type(self.path, channel)
-                else:
-                    if schema.id not in self._registered:
-                        self._register(schema)
-                    assert self._store is not None
-                    store, msgtype = self._store, schema.name
-                msg = store.deserialize_cdr(message.data, msgtype)
-            except StopIteration:
-                return
-            except BagError:
-                raise
-            except Exception as err:  # corrupt chunk, schema or CDR payload
-                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
-            yield BagMessage(channel.topic, int(message.log_time), msgtype, msg)
-
-    def channels(self) -> list[tuple[Any, Any]]:
-        """``(channel, schema or None)`` of every channel, from the summary or a scan."""
-        try:
-            summary = self._reader.get_summary()
-            if summary is not None:
-                return [(c, summary.schemas.get(c.schema_id) if c.schema_id else None)
-                        for c in summary.channels.values()]
-            from mcap.records import Channel, Schema
-            from mcap.stream_reader import StreamReader
-            self._file.seek(0)
-            schemas: dict[int, Any] = {}
-            found: list[tuple[Any, Any]] = []
-            for record in StreamReader(self._file).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    found.append((record, schemas.get(record.schema_id)))
-            return found
-        except Exception as err:  # mcap raises McapError, KeyError, struct.error on corruption
-            raise BagError(f'cannot read bag {self.path}: {_describe(err)}') from err
-
-    def channel_type(self, channel: Any, schema: Any) -> tuple[Typestore, str]:
-        """The typestore and type name a channel's messages deserialize with."""
-        if channel.message_encoding != 'cdr':
-            raise BagError(f'{self.path}: topic {channel.topic} has message encoding '
-                           f'{channel.message_encoding!r}; only cdr is supported')
-        if schema is None:
-            # No schema in the file: rosbag2 readers fall back to the installed types.
-            return jazzy_typestore(), _schemaless_type(self.path, channel)
-        if schema.id not in self._registered:
-            try:
-                self._register(schema)
-            except BagError:
-                raise
-            except Exception as err:  # a schema rosbags cannot parse
-                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
-        assert self._store is not None
-        return self._store, schema.name
-
-    def raw_messages(self, wanted: set[str] | None) -> Iterator[tuple[Any, Any, Any]]:
-        """``(schema, channel, message)`` records in log-time order, not deserialized."""
-        if wanted is not None and not wanted:
-            return
-        stream = self._reader.iter_messages(topics=sorted(wanted) if wanted else None,
-                                            log_time_order=True)
-        while True:
-            try:
-                record = next(stream)
-            except StopIteration:
-                return
-            except Exception as err:  # corrupt chunk
-                raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
-            yield record
-
-
 class RawBag:
     """A bag read message by message as CDR bytes, with the definitions of its types.
 
@@ -373,32 +207,20 @@ class RawBag:
     def __init__(self, path: str | os.PathLike[str]):
         self.path = Path(path)
         self.topics: dict[str, str] = {}
-        self._kind, self._target = _kind(self.path)
-        self._mcap: _McapSource | None = None
+        self._target = _target(self.path)
         self._any: Any = None
         self._types: dict[str, tuple[Typestore, str]] = {}
 
     def __enter__(self) -> RawBag:
-        if self._kind == 'mcap':
-            self._mcap = _McapSource(self._target).__enter__()
-            try:
-                for channel, schema in self._mcap.channels():
-                    store, msgtype = self._mcap.channel_type(channel, schema)
-                    self._types.setdefault(channel.topic, (store, msgtype))
-            except BaseException:
-                self.close()
-                raise
-        else:
-            from rosbags.highlevel import AnyReader
-            try:
-                self._any = AnyReader([self._target], default_typestore=jazzy_typestore())
-                self._any.open()
-            except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors
-                self._any = None
-                raise BagError(f'cannot open bag {self.path}: {_describe(err)}') from err
-            for connection in self._any.connections:
-                self._types.setdefault(connection.topic,
-                                       (self._any.typestore, connection.msgtype))
+        from rosbags.highlevel import AnyReader
+        try:
+            self._any = AnyReader([self._target], default_typestore=jazzy_typestore())
+            self._any.open()
+        except Exception as err:  # rosbags raises its own, sqlite3, yaml and OS errors
+            self._any = None
+            raise BagError(f'cannot open bag {self.path}: {_describe(err)}') from err
+        for connection in self._any.connections:
+            self._types.setdefault(connection.topic, (self._any.typestore, connection.msgtype))
         self.topics = {topic: msgtype for topic, (_, msgtype) in self._types.items()}
         return self
 
@@ -407,9 +229,6 @@ class RawBag:
         self.close()
 
     def close(self) -> None:
-        if self._mcap is not None:
-            self._mcap.close()
-            self._mcap = None
         if self._any is not None:
             self._any.close()
             self._any = None
@@ -440,11 +259,6 @@ class RawBag:
             BagError: A requested topic is absent, or the bag is corrupt (also mid-way).
         """
         wanted = _check_topics(self.path, self.topics, topics)
-        if self._mcap is not None:
-            for schema, channel, message in self._mcap.raw_messages(wanted):
-                _, msgtype = self._mcap.channel_type(channel, schema)
-                yield RawMessage(channel.topic, int(message.log_time), msgtype, message.data)
-            return
         reader = self._any
         if reader is None:
             raise BagError(f'bag {self.path} is not open')
@@ -466,14 +280,6 @@ class RawBag:
             except Exception as err:  # a corrupt record deep in the bag: any error of the libs
                 raise BagError(f'corrupt bag {self.path}: {_describe(err)}') from err
             yield RawMessage(connection.topic, int(stamp), connection.msgtype, data)
-
-
-def _schemaless_type(path: Path, channel: Any) -> str:
-    """The type of a channel without schema, from its rosbag2 metadata if it has one."""
-    msgtype = channel.metadata.get('type', '') if hasattr(channel, 'metadata') else ''
-    if msgtype not in jazzy_typestore().types:
-        raise BagError(f'{path}: topic {channel.topic} has no schema and no known type')
-    return msgtype
 
 
 class BagWriter:
