@@ -200,12 +200,12 @@ def test_bad_arguments_raise_before_any_work(kwargs, match, tmp_path):
 
 
 def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
-    # The dataset machine has numpy, scipy, numba, trimesh and embreex only: generate with
-    # every other installed package made unimportable (optional imports of trimesh and scipy
-    # then fail as they would there; tqdm too, so the plain progress line is used).
+    # A dataset machine needs numpy, scipy, numba, trimesh, embreex and tqdm only: generate
+    # with every other installed package made unimportable (optional imports of trimesh and
+    # scipy then fail as they would there).
     code = (
         'import importlib.machinery, sys\n'
-        'ALLOWED = {"numpy", "scipy", "numba", "trimesh", "embreex", "landing_zone"}\n'
+        'ALLOWED = {"numpy", "scipy", "numba", "trimesh", "embreex", "tqdm", "landing_zone"}\n'
         'class Block:\n'
         '    def find_spec(self, name, path=None, target=None):\n'
         '        top = name.split(".")[0]\n'
@@ -217,10 +217,8 @@ def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
         '        return None\n'
         'sys.meta_path.insert(0, Block())\n'
         'BEFORE = set(sys.modules)  # (site hooks of the venv load before this)\n'
-        'from landing_zone.sim.__main__ import main\n'
-        f'rc = main(["simulate", "--dataset", "synth1", "--out", r"{tmp_path / "d"}", '
-        '"--scenes", "2", "--workers", "1"])\n'
-        'assert rc == 0\n'
+        'from landing_zone.sim.dataset import simulate_dataset\n'
+        f'simulate_dataset("synth1", r"{tmp_path / "d"}", scenes=2, workers=1)\n'
         'files = [str(getattr(sys.modules[m], "__file__", "")) for m in list(sys.modules)\n'
         '         if m not in BEFORE]\n'
         'dirs = {f.split("-packages/")[1].split("/")[0] for f in files if "-packages/" in f}\n'
@@ -229,13 +227,12 @@ def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     third_party = set(out.stdout.strip().splitlines()[-1].split())
-    assert third_party <= {'numpy', 'scipy', 'numba', 'trimesh', 'embreex'}, third_party
-    assert 'scenes/s' in out.stderr  # the progress line without tqdm
+    assert third_party <= {'numpy', 'scipy', 'numba', 'trimesh', 'embreex', 'tqdm'}, third_party
     assert len(SceneDataset(tmp_path / 'd', 'all')) == 2
 
 
 def test_module_entry_point_reports_bad_input_in_one_line(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'landing_zone.sim', 'simulate', '--dataset',
+    out = subprocess.run([sys.executable, '-m', 'landing_zone', 'simulate', '--dataset',
                           'synth1', '--out', str(tmp_path / 'x'), '--scenes', '0'],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2

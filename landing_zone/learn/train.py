@@ -40,6 +40,7 @@ from typing import Any, Iterator
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
+from tqdm import tqdm
 
 from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
@@ -152,10 +153,10 @@ class ScenePack:
         pts, oidx, orgs, labels, params = [], [], [], [], []
         offsets = [0]
         n_orig = 0
-        bar = _bar(progress, total=len(idx), desc=desc, unit='scene', leave=False)
+        bar = tqdm(total=len(idx), desc=desc, unit='scene', leave=False, file=sys.stderr,
+                   disable=not progress)
         for i in idx:
-            if bar is not None:
-                bar.update(1)
+            bar.update(1)
             s = source[int(i)]
             p = np.asarray(s.points, np.float32)
             o = np.asarray(s.origins, np.float32)
@@ -180,8 +181,7 @@ class ScenePack:
             offsets.append(offsets[-1] + len(p))
             labels.append(int(s.label))
             params.append(dict(getattr(s, 'params', {}) or {}))
-        if bar is not None:
-            bar.close()
+        bar.close()
         cat = (lambda a, shape, dt: torch.from_numpy(np.concatenate(a).astype(dt, copy=False))
                if a else torch.zeros(shape, dtype=torch.from_numpy(np.zeros(0, dt)).dtype))
         return cls(cat(pts, (0, 3), np.float32), torch.tensor(offsets, dtype=torch.int64),
@@ -393,16 +393,15 @@ def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers:
     out = torch.empty((len(keys), 1, side, side, side), dtype=dtype)
     labels = torch.empty(len(keys), dtype=torch.float32)
     loader = make_loader(ds, keys, 64, workers)
-    bar = _bar(progress, total=len(keys), desc=desc, unit='vol', leave=False)
+    bar = tqdm(total=len(keys), desc=desc, unit='vol', leave=False, file=sys.stderr,
+               disable=not progress)
     pos = 0
     for x, y in loader:
         out[pos:pos + len(x)] = x.to(dtype)
         labels[pos:pos + len(x)] = y
         pos += len(x)
-        if bar is not None:
-            bar.update(len(x))
-    if bar is not None:
-        bar.close()
+        bar.update(len(x))
+    bar.close()
     return out, labels
 
 
@@ -427,18 +426,6 @@ def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
         return float('nan')
     from sklearn.metrics import roc_auc_score
     return float(roc_auc_score(y, np.asarray(scores, np.float64).reshape(-1)))
-
-
-def _bar(enabled: bool, **kw: Any) -> Any:
-    """A tqdm bar on stderr, or None when disabled or tqdm is not installed (training boxes
-    may have only torch, numpy, numba, scipy and scikit-learn)."""
-    if not enabled:
-        return None
-    try:
-        from tqdm import tqdm
-    except ImportError:
-        return None
-    return tqdm(file=sys.stderr, **kw)
 
 
 # -----------------------------------------------------------------------------------------------
@@ -710,8 +697,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         sampler.set_epoch(epoch, start)
         model.train()
         n_batches = math.ceil(len(sampler) / cfg.batch_size)
-        bar = _bar(progress, total=n_batches, desc=f'epoch {epoch + 1}/{cfg.epochs}',
-                   unit='batch')
+        bar = tqdm(total=n_batches, desc=f'epoch {epoch + 1}/{cfg.epochs}', unit='batch',
+                   file=sys.stderr, disable=not progress)
         t_epoch = time.perf_counter()
         seconds0, wait0, samples0 = run['seconds'], run['data_wait'], run['samples']
         if cache is not None:
@@ -742,16 +729,14 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             run['step'] += 1
             now = time.perf_counter()
             run['seconds'] = seconds0 + (now - t_epoch)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(loss=f'{run["loss_sum"] / run["loss_n"]:.4f}', refresh=False)
+            bar.update(1)
+            bar.set_postfix(loss=f'{run["loss_sum"] / run["loss_n"]:.4f}', refresh=False)
             if (cfg.checkpoint_minutes
                     and time.monotonic() - last_ckpt > 60 * cfg.checkpoint_minutes):
                 checkpoint()
                 last_ckpt = time.monotonic()
             t_wait = time.perf_counter()
-        if bar is not None:
-            bar.close()
+        bar.close()
         _, val_loss, val_auc = _evaluate(model, d.val_inputs, d.val_labels, eval_precision)
         run['seconds'] = seconds0 + (time.perf_counter() - t_epoch)
         done = run['samples'] - samples0
@@ -810,63 +795,3 @@ def describe(path: str | os.PathLike) -> str:
     m = meta.get('metrics', {})
     return (f'{path}: {meta["model"]["spec"]}, val AUC {m.get("val_auc")}, temperature '
             f'{meta.get("temperature")}')
-
-
-# -----------------------------------------------------------------------------------------------
-# a command line with the standard library only (``python -m landing_zone.learn.train``), for
-# training boxes without typer; ``landing-zone train`` takes the same options
-
-_HELP = {
-    'arch': 'network spec', 'epochs': 'passes over the augmented training set',
-    'lr': 'SGD learning rate', 'momentum': 'SGD momentum', 'weight_decay': 'L2 penalty',
-    'batch_size': 'samples per minibatch',
-    'augment_copies': 'augmented samples of every scene per epoch',
-    'max_samples': 'cap on samples per epoch (0: none)',
-    'val_fraction': 'share of training scenes held out', 'workers': 'data loader processes',
-    'seed': 'seed of initialisation, split and augmentation', 'device': 'cpu or cuda[:N]',
-    'dropout': 'dropout after each layer', 'z_shift': 'largest vertical shift [m]',
-    'yaw': 'random yaw (--no-yaw: none)',
-    'edge_drop': 'share of samples with their context cut off beyond a line in the padding',
-    'checkpoint_minutes': 'also save the state this often within an epoch',
-    'cache_voxels': 'pre-voxelize this many augmented copies per scene (0: on the fly)',
-    'precision': 'auto, fp32 or bf16'}
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m landing_zone.learn.train --data DIR --out MODEL [options]``."""
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog='python -m landing_zone.learn.train',
-        description='Train the safety CNN (same options as `landing-zone train`).')
-    parser.add_argument('--data', required=True, nargs='+', help='dataset directories')
-    parser.add_argument('--out', required=True, help='model file to write (.safetensors)')
-    parser.add_argument('--resume', action='store_true', help='continue from OUT.train')
-    parser.add_argument('--init', default=None, help='start from this model (same spec)')
-    parser.add_argument('--quiet', action='store_true', help='no progress bars')
-    defaults = TrainConfig()
-    for f in fields(TrainConfig):
-        flag = '--' + f.name.replace('_', '-')
-        value = getattr(defaults, f.name)
-        if isinstance(value, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=value,
-                                help=_HELP.get(f.name, ''))
-        else:
-            parser.add_argument(flag, type=type(value), default=value,
-                                help=f'{_HELP.get(f.name, "")} (default {value})')
-    args = parser.parse_args(argv)
-    cfg = TrainConfig(**{f.name: getattr(args, f.name) for f in fields(TrainConfig)})
-    try:
-        s = train(args.data, args.out, cfg, resume=args.resume, init=args.init,
-                  progress=not args.quiet)
-    except (ConfigError, DatasetError, ModelError) as err:
-        print(f'train: error: {err}', file=sys.stderr)
-        return 2
-    print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
-          f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} at '
-          f'temperature {s["temperature"]:.3f}')
-    return 0
-
-
-if __name__ == '__main__':
-    sys.exit(main())

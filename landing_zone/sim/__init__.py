@@ -16,9 +16,9 @@ One concept per module, in the order the data flows:
 ``render``         pictures of patches and flights (returns coloured by what they hit)
 =================  ============================================================================
 
-The dataset path imports only numpy, scipy, trimesh and embreex (tqdm when present), so
-datasets can be generated on a machine without ROS, typer or torch:
-``python -m landing_zone.sim simulate --dataset synth2 --out DIR``.
+The dataset path imports only numpy, scipy, numba, trimesh, embreex and tqdm, so datasets can
+be generated on a machine without ROS or torch (``landing-zone simulate --dataset synth2 --out
+DIR``).
 """
 from __future__ import annotations
 

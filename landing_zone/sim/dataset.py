@@ -7,9 +7,9 @@ Usage::
     ds = SceneDataset('data/synth2', split='train')
     scene = ds[0]            # points, origins (float32, tile frame), label (1 safe), params
 
-or, on a machine with only numpy, scipy, numba, trimesh and embreex (no typer, no tqdm)::
+or from the command line::
 
-    python -m landing_zone.sim simulate --dataset synth2 --out data/synth2
+    landing-zone simulate --dataset synth2 --out data/synth2
 
 **The sweeps.** A *setting* is one combination of the sweep's axes; each setting is simulated
 ``instances`` times, half of them with one obstacle (label 0, unsafe), half without (label 1,
@@ -57,7 +57,6 @@ import io
 import json
 import math
 import os
-import sys
 import time
 import zipfile
 from dataclasses import dataclass
@@ -337,38 +336,11 @@ def _shard_complete(path: Path, indices: list[int]) -> bool:
         return False
 
 
-class _Progress:
-    """tqdm when it is installed (it is not on every dataset machine), else a plain line."""
-
-    def __init__(self, total: int, initial: int, enabled: bool, desc: str) -> None:
-        self.enabled = enabled
-        self.total, self.n, self.t0, self.last = total, initial, time.perf_counter(), 0.0
-        self.start_n = initial
-        self.bar = None
-        if enabled:
-            try:
-                from tqdm import tqdm
-                self.bar = tqdm(total=total, initial=initial, desc=desc, unit='scene',
-                                dynamic_ncols=True, smoothing=0.05)
-            except ImportError:
-                self.desc = desc
-
-    def update(self, n: int) -> None:
-        self.n += n
-        if self.bar is not None:
-            self.bar.update(n)
-        elif self.enabled:
-            now = time.perf_counter()
-            if now - self.last >= 2.0 or self.n == self.total:
-                self.last = now
-                rate = (self.n - self.start_n) / max(now - self.t0, 1e-9)
-                eta = (self.total - self.n) / rate if rate > 0 else float('inf')
-                print(f'{self.desc}: {self.n}/{self.total} scenes, {rate:.1f} scenes/s, '
-                      f'ETA {eta:.0f} s', file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+def progress_bar(total: int, initial: int, enabled: bool, desc: str) -> Any:
+    """The scenes' progress bar on stderr (a no-op when not ``enabled``)."""
+    from tqdm import tqdm
+    return tqdm(total=total, initial=initial, desc=desc, unit='scene', dynamic_ncols=True,
+                smoothing=0.05, disable=not enabled)
 
 
 def _plan_meta(dataset: str, seed: int, split: str, scenes: int | None, shard_size: int,
@@ -508,7 +480,7 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         method = ('fork' if safe and 'fork' in multiprocessing.get_all_start_methods()
                   else 'spawn')
         pool = multiprocessing.get_context(method).Pool(workers)
-    bar = _Progress(len(selected), done, progress, f'{dataset} -> {out}')
+    bar = progress_bar(len(selected), done, progress, f'{dataset} -> {out}')
     try:
         results = (pool.imap_unordered(_make_shard, tasks) if pool is not None
                    else map(_make_shard, tasks))

@@ -3,7 +3,6 @@
 Usage::
 
     landing-zone simulate --dataset hybrid --from a.mcap --from b.mcap --out data/hybrid
-    python -m landing_zone.sim simulate --dataset hybrid --from a.mcap b.mcap --out data/hybrid
 
 Real grass, ground and sensor noise come from the flights; the obstacles come from the
 simulator's library and are put in by cutting short the rays that would have hit them
@@ -373,8 +372,8 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     from scipy.spatial import cKDTree
 
     from landing_zone.sim.insert import read_flight
-    from landing_zone.sim.dataset import (_Progress, _shard_arrays, _shard_complete, _shard_name,
-                                          _write_json, _write_npz, prepare_output)
+    from landing_zone.sim.dataset import (_shard_arrays, _shard_complete, _shard_name,
+                                          _write_json, _write_npz, prepare_output, progress_bar)
 
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]
@@ -437,7 +436,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     prepare_output(out, meta, _plan_key)
 
     done = generated = 0
-    bar = _Progress(scene, 0, progress, f'hybrid -> {out}')
+    bar = progress_bar(scene, 0, progress, f'hybrid -> {out}')
     try:
         for plan in plans:
             mine = [s for s in shards if s['flight'] == plan['index']]
