@@ -302,7 +302,9 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
         ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
                                edgecolor='0.6', linewidth=0))
     if labels is not None:
-        for ob in _obstacles(labels):
+        from landing_zone.io.labels import obstacle_footprints, read_labels
+
+        for ob in obstacle_footprints(read_labels(labels)):
             ax.add_patch(Polygon(ob, closed=True, fill=False, edgecolor='black', linewidth=1.2))
     for rank, site in enumerate(assessment.sites, start=1):
         ax.add_patch(Circle((site.x, site.y), assessment.footprint_radius, fill=False,
@@ -344,22 +346,3 @@ def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],
     np.maximum.at(img, i[ok] * ny + j[ok], points[ok, 2])
     img[np.isinf(img)] = np.nan
     return img.reshape(nx, ny)
-
-
-def _obstacles(labels: str | os.PathLike[str]) -> list[np.ndarray]:
-    """Footprint polygons (4, 2) of the obstacles of a SITE.labels.json."""
-    try:
-        doc = json.loads(Path(labels).read_text(encoding='utf-8'))
-    except (OSError, ValueError) as err:
-        raise BagError(f'cannot read labels {labels}: {err}') from err
-    out = []
-    for ob in doc.get('obstacles', []):
-        try:
-            x, y, yaw = float(ob['x']), float(ob['y']), float(ob.get('yaw', 0.0))
-            dx, dy = float(ob['size'][0]), float(ob['size'][1])
-        except (KeyError, TypeError, ValueError, IndexError):
-            continue
-        c, s = math.cos(yaw), math.sin(yaw)
-        corners = np.array([[-dx, -dy], [dx, -dy], [dx, dy], [-dx, dy]]) / 2
-        out.append(corners @ np.array([[c, s], [-s, c]]) + [x, y])
-    return out

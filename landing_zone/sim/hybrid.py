@@ -214,7 +214,8 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
     """Read a flight and decide its patches: tiles, grounds, columns, labels, splits."""
     from scipy.spatial import cKDTree
 
-    from landing_zone.sim.insert import ground_height, labels_path_for, read_flight, read_labels
+    from landing_zone.io.labels import labels_path_for, read_labels
+    from landing_zone.sim.insert import ground_height, read_flight
     from landing_zone.sim.scene import PatchConfig
 
     fr = read_flight(bag, args['points_topic'], args['pose_topic'], args['frame_id'])

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 import math
 import os
 import time
@@ -55,13 +54,14 @@ import numba as nb
 import numpy as np
 
 from landing_zone.errors import BagError, ConfigError, SimulationError
+from landing_zone.io.labels import labels_path_for, read_labels, write_labels
 from landing_zone.sim.mesh import OBSTACLE, Mesh
 from landing_zone.sim.obstacles import Obstacle, ObstacleModel, models
 from landing_zone.sim.raycast import RayCaster
 
 __all__ = ['ObstacleScene', 'alter_returns', 'segments_meet_boxes', 'ground_height',
            'place_obstacles', 'insert_obstacles', 'InsertResult', 'DEFAULT_KINDS',
-           'FlightReturns', 'read_flight', 'read_labels', 'labels_path_for',
+           'FlightReturns', 'read_flight',
            'RANGE_SIGMA', 'SINK', 'MIN_SEPARATION']
 
 DEFAULT_KINDS = ('rock', 'tire', 'cinder_block', 'box')
@@ -469,32 +469,6 @@ class InsertResult:
         return out
 
 
-def labels_path_for(bag: str | os.PathLike[str]) -> Path:
-    """``SITE.labels.json`` beside ``SITE.mcap`` (the simulator's naming)."""
-    bag = Path(bag)
-    return bag.with_name(bag.stem + '.labels.json')
-
-
-def read_labels(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """A SITE.labels.json document, checked for the fields this tool uses.
-
-    Raises:
-        ConfigError: unreadable, not JSON or not a labels file.
-    """
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding='utf-8'))
-    except OSError as err:
-        raise ConfigError(f'cannot read labels {path}: {err.strerror}') from err
-    except ValueError as err:
-        raise ConfigError(f'{path} is not JSON: {err}') from err
-    ok = isinstance(doc, dict) and isinstance(doc.get('tiles'), list) and all(
-        isinstance(t, dict) and {'x', 'y', 'safe'} <= set(t) for t in doc['tiles'])
-    if not ok or not isinstance(doc.get('obstacles', []), list):
-        raise ConfigError(f'{path} is not a labels file (tiles with x, y, safe; obstacles)')
-    return doc
-
-
 def _tile_key(x: float, y: float, ts: float) -> tuple[int, int]:
     return int(math.floor(x / ts)), int(math.floor(y / ts))
 
@@ -820,7 +794,6 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     clouds = altered_clouds = skipped = returns = altered = messages = 0
     cast_s = 0.0
     t0 = time.perf_counter()
-    tmp_labels = labels_out.with_name(labels_out.name + '.tmp')
     writer = BagWriter(out, overwrite=overwrite)
     writer.open()
     try:
@@ -855,16 +828,15 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
                             altered += k
                 writer.write_raw(m.topic, m.stamp_ns, data)
                 messages += 1
-        try:
-            tmp_labels.write_text(json.dumps(new_labels, indent=1) + '\n', encoding='utf-8')
-        except OSError as err:
-            raise BagError(f'cannot write {labels_out}: {err.strerror}') from err
         writer.close()
-        os.replace(tmp_labels, labels_out)
     except BaseException:
         writer.abort()
-        tmp_labels.unlink(missing_ok=True)
         raise
+    try:
+        write_labels(labels_out, new_labels)
+    except OSError as err:
+        out.unlink(missing_ok=True)  # a bag without its labels is no result
+        raise BagError(f'cannot write {labels_out}: {err.strerror}') from err
     timings['write'] = time.perf_counter() - t0
     timings['alter'] = cast_s
     return InsertResult(out, labels_out, placed, clouds, altered_clouds, skipped, returns,
