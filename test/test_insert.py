@@ -17,8 +17,10 @@ import pytest
 
 from landing_zone import cli
 from landing_zone.io.bags import BagWriter, RawBag
-from landing_zone.sim.insert import (ObstacleScene, alter_returns, ground_height,
-                                     insert_obstacles, read_flight, segments_meet_boxes)
+from landing_zone.sim.alteration import ObstacleScene, alter_returns, segments_meet_boxes
+from landing_zone.sim.insert import insert_obstacles
+from landing_zone.sim.placement import ground_height
+from landing_zone.sim.recorded import read_flight
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.obstacles import Obstacle, get_model
 from msg_adapters import MessageTypes, make_header, stamp_to_ns

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from landing_zone import cli
-from landing_zone.sim.insert import read_flight
+from landing_zone.sim.recorded import read_flight
 from landing_zone.sim.dataset import SceneDataset
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.hybrid import column_rays, simulate_hybrid

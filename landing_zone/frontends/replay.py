@@ -29,16 +29,12 @@ from landing_zone.errors import BagError, ConfigError
 
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment
-    from landing_zone.config import AssessorConfig
-    from landing_zone.config import StreamConfig
+    from landing_zone.config import AssessorConfig, StreamConfig
     from landing_zone.frontends.stream import Stream
 
-__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME',
-           'check_bag_topics']
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME']
 
 NODE_NAME = 'assessor'
-POINTS_TYPE = 'sensor_msgs/msg/PointCloud2'
-POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
 # Returns kept for the PNG's top view: every TOP_VIEW_STRIDE-th return, at most TOP_VIEW_MAX.
 TOP_VIEW_STRIDE = 4
 TOP_VIEW_MAX = 400_000
@@ -121,21 +117,6 @@ class _Outputs:
         self.seconds += time.perf_counter() - t0
 
 
-def check_bag_topics(bag: Path, points_topic: str, pose_topic: str) -> None:
-    """Raise BagError unless the bag has both topics with the right types (one line)."""
-    from landing_zone.io.bags import bag_topics
-
-    topics = bag_topics(bag)
-    for topic, want in ((points_topic, POINTS_TYPE), (pose_topic, POSE_TYPE)):
-        if topic not in topics:
-            raise BagError(f'{bag} lacks topic {topic} (it has '
-                           f'{", ".join(sorted(topics)) or "no topics"}); choose with '
-                           '--points-topic / --pose-topic')
-        if topics[topic] != want:
-            raise BagError(f'{bag}: topic {topic} carries {topics[topic] or "an unknown type"}, '
-                           f'expected {want}')
-
-
 def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
            report: str | os.PathLike[str] | None = None,
            png: str | os.PathLike[str] | None = None, *,
@@ -172,12 +153,12 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     from tqdm import tqdm
 
     from landing_zone.assessor import Assessor
-    from landing_zone.io.bags import BagWriter, read_messages
+    from landing_zone.io.bags import BagWriter, read_messages, require_topics
     from landing_zone.frontends.stream import Stream
 
     t_start = time.perf_counter()
     bag = Path(bag)
-    check_bag_topics(bag, points_topic, pose_topic)
+    require_topics(bag, points_topic, pose_topic)
     if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
         raise ConfigError(f'center must be two finite numbers, got {center!r}')
     assessor = Assessor(config, center=center, model=model)

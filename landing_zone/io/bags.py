@@ -50,6 +50,7 @@ __all__ = [
     'RawBag',
     'read_messages',
     'bag_topics',
+    'require_topics',
     'BagWriter',
 ]
 
@@ -134,6 +135,24 @@ def bag_topics(path: str | os.PathLike[str]) -> dict[str, str]:
         raise
     except Exception as err:  # any rosbags/sqlite/yaml failure means the same: unreadable bag
         raise BagError(f'cannot read bag {path}: {_describe(err)}') from err
+
+
+def require_topics(bag: str | os.PathLike[str], points_topic: str, pose_topic: str) -> None:
+    """Raise BagError unless the bag has both topics with the right types (one line).
+
+    The types are ``sensor_msgs/msg/PointCloud2`` and ``geometry_msgs/msg/PoseStamped``, the
+    inputs of the node (docs/INTERFACES.md §1).
+    """
+    topics = bag_topics(bag)
+    for topic, want in ((points_topic, 'sensor_msgs/msg/PointCloud2'),
+                        (pose_topic, 'geometry_msgs/msg/PoseStamped')):
+        if topic not in topics:
+            raise BagError(f'{bag} lacks topic {topic} (it has '
+                           f'{", ".join(sorted(topics)) or "no topics"}); choose with '
+                           '--points-topic / --pose-topic')
+        if topics[topic] != want:
+            raise BagError(f'{bag}: topic {topic} carries {topics[topic] or "an unknown type"}, '
+                           f'expected {want}')
 
 
 def read_messages(path: str | os.PathLike[str],

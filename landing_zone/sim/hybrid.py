@@ -6,14 +6,15 @@ Usage::
 
 Real grass, ground and sensor noise come from the flights; the obstacles come from the
 simulator's library and are put in by cutting short the rays that would have hit them
-(:func:`landing_zone.sim.insert.alter_returns`), so the set is labelled exactly, like synth1/2, but
-its clutter is the flights'. The result has the synth datasets' format (``meta.json`` and
-``shards/*.npz``, see :mod:`landing_zone.sim.dataset`), so :class:`SceneDataset`,
-``landing-zone train`` and ``landing-zone evaluate`` (and the augmentation) read it unchanged.
+(:func:`landing_zone.sim.alteration.alter_returns`), so the set is labelled exactly, like
+synth1/2, but its clutter is the flights'. The result has the synth datasets' format
+(``meta.json`` and ``shards/*.npz``, see :mod:`landing_zone.sim.dataset`), so
+:class:`SceneDataset`, ``landing-zone train`` and ``landing-zone evaluate`` (and the
+augmentation) read it unchanged.
 
 **Patches.** For each flight, every return and its sensor origin (the pose interpolated at the
-cloud's stamp, :func:`landing_zone.sim.insert.read_flight`). Candidate patches are the 1 m tiles of
-the global lattice (centres at x.5) in the flight's clear region: the safe tiles of
+cloud's stamp, :func:`landing_zone.sim.recorded.read_flight`). Candidate patches are the 1 m
+tiles of the global lattice (centres at x.5) in the flight's clear region: the safe tiles of
 ``BAG.labels.json`` whose eight neighbours are safe too (no labelled obstacle reaches the tile's
 context), within ``region`` if one is given; or, for a flight without labels, the tiles of
 ``region``. A candidate must hold ``MIN_PATCH_RETURNS`` returns and its neighbours half that
@@ -22,7 +23,7 @@ context), within ``region`` if one is given; or, for a flight without labels, th
 **A patch** keeps what a synth scene keeps: every ray that passes through the tile's padded
 column (the tile and 0.3 m around it, from 1 m below to 2 m above its ground; see
 :class:`~landing_zone.sim.scene.PatchConfig`), found for all patches at once by a compiled
-ray/box pass over the flight. Its ground is :func:`landing_zone.sim.insert.ground_height` at the
+ray/box pass over the flight. Its ground is :func:`landing_zone.sim.placement.ground_height` at the
 tile centre; the patch frame puts the tile centre at (0, 0) and that ground at z = 0. Half the
 patches (a seeded draw) get one obstacle, placed as synth2 places them
 (:func:`~landing_zone.sim.scene.simulate_patch`): half of those wholly inside the tile, half
@@ -56,7 +57,7 @@ import numba as nb
 import numpy as np
 
 from landing_zone.errors import ConfigError, DatasetError, SimulationError
-from landing_zone.sim.insert import segment_meets_box
+from landing_zone.sim.alteration import segment_meets_box
 
 __all__ = ['simulate_hybrid', 'plan_flight', 'column_rays', 'MIN_PATCH_RETURNS']
 
@@ -215,7 +216,8 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
     from scipy.spatial import cKDTree
 
     from landing_zone.io.labels import labels_path_for, read_labels
-    from landing_zone.sim.insert import ground_height, read_flight
+    from landing_zone.sim.placement import ground_height
+    from landing_zone.sim.recorded import read_flight
     from landing_zone.sim.scene import PatchConfig
 
     fr = read_flight(bag, args['points_topic'], args['pose_topic'], args['frame_id'])
@@ -250,8 +252,8 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
 def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.ndarray,
                   scene_index: int, seed: int) -> dict[str, Any]:
     """One scene: the column's rays in the patch frame, with an obstacle if it is unsafe."""
-    from landing_zone.sim.insert import (RANGE_SIGMA, SINK, _ground_radius, alter_returns,
-                                         ground_height)
+    from landing_zone.sim.alteration import RANGE_SIGMA, alter_returns
+    from landing_zone.sim.placement import SINK, ground_height, ground_radius
     from landing_zone.sim.dataset import SWEEPS, _choose_model
     from landing_zone.sim.mesh import OBSTACLE
     from landing_zone.sim.obstacles import Obstacle, get_model
@@ -274,7 +276,7 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
             free = 0.5 + 0.5 * model.radius
         x, y = rng.uniform(-free, free, 2) + (cx, cy)
         yaw = float(rng.uniform(0.0, 2.0 * np.pi))
-        radius = _ground_radius(model)
+        radius = ground_radius(model)
         near = tree.query_ball_point((x, y), radius)
         gz = ground_height(fr.points[near], x, y, radius) if near else None
         z = (g if gz is None else gz) - model.embed - SINK
@@ -372,7 +374,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     """
     from scipy.spatial import cKDTree
 
-    from landing_zone.sim.insert import read_flight
+    from landing_zone.sim.recorded import read_flight
     from landing_zone.sim.dataset import (_shard_arrays, _shard_complete, _shard_name,
                                           _write_json, _write_npz, prepare_output, progress_bar)
 
