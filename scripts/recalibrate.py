@@ -20,7 +20,9 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import predict
 from landing_zone.sim.dataset import SceneDataset
-from landing_zone.learn.train import ScenePack, roc_auc, split_scenes, voxelize
+from landing_zone.learn.samples import voxelize
+from landing_zone.learn.scenes import ScenePack, split_scenes
+from landing_zone.learn.train import roc_auc
 
 
 def main() -> None:

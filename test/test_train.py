@@ -12,9 +12,10 @@ from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from landing_zone.sim.dataset import Scene
 from landing_zone.judging.tiles import scene_to_input
-from landing_zone.learn.train import (AugmentedVolumes, EpochSampler, ScenePack, TrainConfig,
-                                      cut_context, log_path, roc_auc, split_scenes, state_path,
-                                      train, voxelize)
+from landing_zone.learn.samples import AugmentedVolumes, EpochSampler, cut_context, voxelize
+from landing_zone.learn.scenes import ScenePack, split_scenes
+from landing_zone.learn.state import log_path, state_path
+from landing_zone.learn.train import TrainConfig, roc_auc, train
 
 SMALL = 'C5-F8-P2-D32'
 
@@ -220,7 +221,7 @@ def test_edge_drop_cuts_only_the_context():
 
 
 def test_concatenated_sources_index_through():
-    from landing_zone.learn.train import ConcatScenes
+    from landing_zone.learn.scenes import ConcatScenes
     a, b = toy_scenes(3, seed=1), toy_scenes(4, seed=2)
     both = ConcatScenes([a, b])
     assert len(both) == 7 and both.labels.tolist() == [0, 1, 0, 0, 1, 0, 1]

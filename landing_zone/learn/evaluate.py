@@ -458,7 +458,8 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         extra_methods: more methods (see :class:`Method`) to evaluate after these.
         Others: see :func:`evaluate`.
     """
-    from landing_zone.learn.train import ScenePack, voxelize
+    from landing_zone.learn.samples import voxelize
+    from landing_zone.learn.scenes import ScenePack
 
     paths = [] if model is None else [model] if isinstance(model, (str, os.PathLike)) \
         else list(model)

@@ -27,19 +27,16 @@ Files beside ``--out`` (for ``model.safetensors``):
 """
 from __future__ import annotations
 
-import csv
 import math
 import os
 import sys
 import time
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, Sampler
 from tqdm import tqdm
 
 from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
@@ -48,10 +45,13 @@ from landing_zone.errors import ConfigError, DatasetError, ModelError
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import bf16_supported, predict
 from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
-from landing_zone.judging.tiles import PatchVoxelizer, tile_voxels
+from landing_zone.judging.tiles import tile_voxels
+from landing_zone.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
+                                        voxelize)
+from landing_zone.learn.scenes import ScenePack, labels_of, open_source, split_scenes
+from landing_zone.learn.state import load_state, log_path, save_state, state_path, write_log
 
-__all__ = ['TrainConfig', 'ScenePack', 'AugmentedVolumes', 'EpochSampler', 'split_scenes',
-           'voxelize', 'train', 'state_path', 'log_path', 'roc_auc']
+__all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
 
 # -----------------------------------------------------------------------------------------------
 # defaults (the paper's, Sec. IV-C, unless noted)
@@ -119,303 +119,7 @@ _RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment
                 'cache_voxels', 'edge_drop')
 
 # -----------------------------------------------------------------------------------------------
-# data
-
-
-class ScenePack:
-    """The returns of many scenes in a few flat tensors, shareable with worker processes.
-
-    Torch tensors in shared memory travel to ``spawn``-ed DataLoader workers as file handles,
-    not copies, so a large training set is held once. Origins are stored once per run of equal
-    rows (a scan line), which makes the pack about 2/3 the size of the expanded arrays.
-    """
-
-    def __init__(self, points: torch.Tensor, point_offsets: torch.Tensor,
-                 origin_index: torch.Tensor, origins: torch.Tensor, labels: torch.Tensor,
-                 params: list[dict], scene_ids: torch.Tensor) -> None:
-        self.points = points  # (N, 3) float32
-        self.point_offsets = point_offsets  # (S + 1,) int64
-        self.origin_index = origin_index  # (N,) int64, row in `origins` (global)
-        self.origins = origins  # (M, 3) float32
-        self.labels = labels  # (S,) int64
-        self.params = params
-        self.scene_ids = scene_ids  # (S,) int64, the scene's index in its source
-
-    @classmethod
-    def from_scenes(cls, source: Any, indices: Sequence[int] | None = None,
-                    progress: bool = False, desc: str = 'loading scenes') -> ScenePack:
-        """Read scenes ``indices`` (default all) of a source with ``len`` and ``[i] -> Scene``.
-
-        Raises:
-            DatasetError: a scene has malformed arrays or a label other than 0 / 1.
-        """
-        idx = np.arange(len(source)) if indices is None else np.asarray(indices, np.int64)
-        pts, oidx, orgs, labels, params = [], [], [], [], []
-        offsets = [0]
-        n_orig = 0
-        bar = tqdm(total=len(idx), desc=desc, unit='scene', leave=False, file=sys.stderr,
-                   disable=not progress)
-        for i in idx:
-            bar.update(1)
-            s = source[int(i)]
-            p = np.asarray(s.points, np.float32)
-            o = np.asarray(s.origins, np.float32)
-            if o.shape == (3,):
-                o = np.broadcast_to(o, p.shape)
-            if p.ndim != 2 or p.shape[1] != 3 or o.shape != p.shape:
-                raise DatasetError(f'scene {int(i)}: points {p.shape} and origins {o.shape} must '
-                                   'both be (N, 3)')
-            if int(s.label) not in (0, 1):
-                raise DatasetError(f'scene {int(i)}: label must be 0 or 1, got {s.label!r}')
-            if len(o):
-                new_run = np.ones(len(o), bool)
-                new_run[1:] = np.any(o[1:] != o[:-1], axis=1)
-                table = o[new_run]
-                run = np.cumsum(new_run) - 1
-            else:
-                table, run = np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
-            pts.append(p)
-            oidx.append(run + n_orig)
-            orgs.append(table)
-            n_orig += len(table)
-            offsets.append(offsets[-1] + len(p))
-            labels.append(int(s.label))
-            params.append(dict(getattr(s, 'params', {}) or {}))
-        bar.close()
-        cat = (lambda a, shape, dt: torch.from_numpy(np.concatenate(a).astype(dt, copy=False))
-               if a else torch.zeros(shape, dtype=torch.from_numpy(np.zeros(0, dt)).dtype))
-        return cls(cat(pts, (0, 3), np.float32), torch.tensor(offsets, dtype=torch.int64),
-                   cat(oidx, (0,), np.int64), cat(orgs, (0, 3), np.float32),
-                   torch.tensor(labels, dtype=torch.int64), params,
-                   torch.from_numpy(idx.astype(np.int64)))
-
-    def __len__(self) -> int:
-        return int(self.labels.shape[0])
-
-    def scene(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """(points, origins) of scene ``i``, both (N, 3) float32."""
-        p0, p1 = int(self.point_offsets[i]), int(self.point_offsets[i + 1])
-        pts = self.points[p0:p1].numpy()
-        org = self.origins.numpy()[self.origin_index[p0:p1].numpy()]
-        return pts, org
-
-    def share_memory(self) -> ScenePack:
-        for t in (self.points, self.point_offsets, self.origin_index, self.origins,
-                  self.labels, self.scene_ids):
-            t.share_memory_()
-        return self
-
-
-def split_scenes(labels: np.ndarray, val_fraction: float, seed: int
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Hold out ``val_fraction`` of the scenes of each class (at least one of each when the
-    class has two or more), chosen by ``seed``; returns sorted (train, val) positions."""
-    labels = np.asarray(labels)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5A1]))
-    val = []
-    for c in (0, 1):
-        members = np.flatnonzero(labels == c)
-        k = int(round(val_fraction * len(members)))
-        if val_fraction > 0 and len(members) >= 2:
-            k = min(max(k, 1), len(members) - 1)
-        val.append(rng.permutation(members)[:k])
-    val_idx = np.sort(np.concatenate(val)).astype(np.int64)
-    train_idx = np.setdiff1d(np.arange(len(labels)), val_idx).astype(np.int64)
-    return train_idx, val_idx
-
-
-class AugmentedVolumes(Dataset):
-    """Sample ``(epoch, scene, copy)`` -> (input (1, S, S, S) float32, label float32).
-
-    With ``augment`` the scene is rotated by a yaw uniform in [0, 2 pi) and shifted by a z
-    uniform in [-z_shift, z_shift] drawn from ``SeedSequence([seed, epoch, scene, copy])``
-    before re-voxelization; without it the scene is used as it is. With ``edge_drop`` > 0 that
-    share of the samples also loses every return beyond a random line in the padding (two lines
-    in a third of them: a corner), so the net sees tiles at the edge of a scanned area, whose
-    context is partly unobserved, as the deployed map shows them; the tile itself and so its
-    label are untouched.
-    """
-
-    def __init__(self, pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, seed: int,
-                 augment: bool = True, z_shift: float = 0.3, yaw: bool = True,
-                 edge_drop: float = 0.0) -> None:
-        self.pack = pack
-        self.map_cfg = map_cfg
-        self.tile_cfg = tile_cfg
-        self.seed = int(seed)
-        self.augment = augment
-        self.z_shift = float(z_shift)
-        self.yaw = bool(yaw)
-        self.edge_drop = float(edge_drop)
-        self._voxelizer: PatchVoxelizer | None = None  # made where the samples are drawn
-
-    def __getstate__(self) -> dict[str, Any]:
-        # a loader worker builds its own voxelizer; the maps are not worth pickling
-        return {**self.__dict__, '_voxelizer': None}
-
-    def __len__(self) -> int:
-        return len(self.pack)
-
-    def draw(self, epoch: int, scene: int, copy: int
-             ) -> tuple[float, float, list[tuple[float, float]]]:
-        """The (yaw, z shift, edge cuts) of one sample; a cut (angle, distance) drops the
-        returns whose xy projection on the direction ``angle`` exceeds ``distance``."""
-        if not self.augment:
-            return 0.0, 0.0, []
-        rng = np.random.default_rng(np.random.SeedSequence(
-            [self.seed, int(epoch) + 1, int(scene), int(copy)]))  # epoch -1 (cache) -> 0
-        yaw = float(rng.uniform(0.0, 2.0 * math.pi)) if self.yaw else 0.0
-        dz = float(rng.uniform(-self.z_shift, self.z_shift)) if self.z_shift > 0 else 0.0
-        cuts: list[tuple[float, float]] = []
-        if self.edge_drop > 0 and rng.uniform() < self.edge_drop:
-            half = self.tile_cfg.tile_size / 2
-            reach = self.tile_cfg.padding * self.map_cfg.voxel_size
-            angle = float(rng.uniform(0.0, 2.0 * math.pi))
-            for k in range(2 if rng.uniform() < 1 / 3 else 1):
-                # a corner: the second line at a right angle to the first
-                cuts.append((angle + k * math.pi / 2, half + float(rng.uniform(0.0, reach))))
-        return yaw, dz, cuts
-
-    def __getitem__(self, key: tuple[int, int, int] | int) -> tuple[torch.Tensor, torch.Tensor]:
-        epoch, scene, copy = (0, int(key), 0) if isinstance(key, (int, np.integer)) else key
-        yaw, dz, cuts = self.draw(epoch, scene, copy)
-        pts, org = self.pack.scene(scene)
-        if cuts:
-            pts, org = cut_context(pts, org, cuts)
-        if self._voxelizer is None:
-            self._voxelizer = PatchVoxelizer()
-        batch = self._voxelizer(pts, org, self.map_cfg, self.tile_cfg, yaw=yaw, z_shift=dz)
-        x = torch.from_numpy(batch.inputs[0])  # (1, S, S, S)
-        return x, torch.tensor(float(self.pack.labels[scene]))
-
-
-def cut_context(points: np.ndarray, origins: np.ndarray, cuts: list[tuple[float, float]]
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Drop the returns (and their origins, when given per return) beyond any of the lines
-    ``cuts`` = [(angle, distance)] in the patch frame: kept where
-    ``x cos(angle) + y sin(angle) <= distance`` for every cut."""
-    keep = np.ones(len(points), bool)
-    for angle, dist in cuts:
-        keep &= points[:, 0] * math.cos(angle) + points[:, 1] * math.sin(angle) <= dist
-    if np.ndim(origins) == 2 and len(origins) == len(points):
-        origins = origins[keep]
-    return points[keep], origins
-
-
-class EpochSampler(Sampler):
-    """Keys ``(epoch, scene, copy)`` of one epoch in a seeded order, from position ``start``.
-
-    An epoch is every (scene, copy) pair of ``scenes`` x ``copies`` in an order drawn from
-    ``(seed, epoch)``, cut to ``max_samples`` if that is set. Call :meth:`set_epoch` before
-    iterating (the DataLoader may keep the sampler across epochs).
-    """
-
-    def __init__(self, scenes: np.ndarray, copies: int, seed: int, max_samples: int = 0
-                 ) -> None:
-        self.scenes = np.asarray(scenes, np.int64)
-        self.copies = int(copies)
-        self.seed = int(seed)
-        self.max_samples = int(max_samples)
-        self.epoch = 0
-        self.start = 0
-
-    def set_epoch(self, epoch: int, start: int = 0) -> None:
-        self.epoch = int(epoch)
-        self.start = int(start)
-
-    def keys(self) -> np.ndarray:
-        """(K, 3) keys of the whole epoch, in order."""
-        total = len(self.scenes) * self.copies
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, 0x0D3]))
-        order = rng.permutation(total)
-        if self.max_samples:
-            order = order[:self.max_samples]
-        return np.column_stack([np.full(len(order), self.epoch), self.scenes[order // self.copies],
-                                order % self.copies])
-
-    def __len__(self) -> int:
-        total = len(self.scenes) * self.copies
-        if self.max_samples:
-            total = min(total, self.max_samples)
-        return max(total - self.start, 0)
-
-    def __iter__(self) -> Iterator[tuple[int, int, int]]:
-        for row in self.keys()[self.start:]:
-            yield int(row[0]), int(row[1]), int(row[2])
-
-
-def _worker_init(_: int) -> None:
-    # Each worker makes one sample at a time: one thread for numba and torch, so that W workers
-    # use W cores and the training process keeps its own.
-    import numba
-    numba.set_num_threads(1)
-    torch.set_num_threads(1)
-
-
-def make_loader(dataset: Dataset, sampler: Sampler, batch_size: int, workers: int,
-                pin_memory: bool = False) -> DataLoader:
-    """A DataLoader over ``dataset`` in ``sampler``'s order.
-
-    Workers are spawned, not forked: a forked child may not start numba's OpenMP threads once
-    the parent has (it aborts), and the scene pack reaches spawned workers through shared
-    memory anyway. They persist across epochs, since starting one costs seconds.
-    """
-    # A generator of its own keeps the loader from drawing its workers' base seed from the
-    # global RNG, which drives dropout: a resumed run then draws the same masks.
-    gen = torch.Generator().manual_seed(0)
-    if workers == 0:
-        return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=0,
-                          pin_memory=pin_memory, generator=gen)
-    return DataLoader(dataset, batch_size=batch_size, sampler=sampler, num_workers=workers,
-                      multiprocessing_context='spawn', persistent_workers=True,
-                      worker_init_fn=_worker_init, pin_memory=pin_memory, prefetch_factor=4,
-                      generator=gen)
-
-
-def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers: int = 0,
-             progress: bool = False, desc: str = 'voxelizing', seed: int = 0,
-             augment: bool = False, copies: int = 1, dtype: torch.dtype = torch.float32,
-             z_shift: float = 0.3, yaw: bool = True, edge_drop: float = 0.0,
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Network inputs of every scene of a pack (``copies`` per scene, in scene order).
-
-    Without ``augment`` each scene is re-voxelized as it is (evaluation, validation); with it
-    copy ``c`` of scene ``s`` is augmented as sample ``(-1, s, c)`` of :class:`AugmentedVolumes`
-    (the voxel cache).
-
-    Returns:
-        inputs (S * copies, 1, side, side, side) of ``dtype``, labels (S * copies,) float32.
-    """
-    ds = AugmentedVolumes(pack, map_cfg, tile_cfg, seed, augment=augment, z_shift=z_shift,
-                          yaw=yaw, edge_drop=edge_drop)
-    keys = [(-1, s, c) for s in range(len(pack)) for c in range(copies)]
-    side = tile_voxels(map_cfg.voxel_size, tile_cfg) + 2 * tile_cfg.padding
-    out = torch.empty((len(keys), 1, side, side, side), dtype=dtype)
-    labels = torch.empty(len(keys), dtype=torch.float32)
-    loader = make_loader(ds, keys, 64, workers)
-    bar = tqdm(total=len(keys), desc=desc, unit='vol', leave=False, file=sys.stderr,
-               disable=not progress)
-    pos = 0
-    for x, y in loader:
-        out[pos:pos + len(x)] = x.to(dtype)
-        labels[pos:pos + len(x)] = y
-        pos += len(x)
-        bar.update(len(x))
-    bar.close()
-    return out, labels
-
-
-@dataclass
-class _VoxelCache:
-    """Pre-voxelized augmented copies: row ``scene * copies + c`` holds copy ``c`` of a scene;
-    sample ``(epoch, scene, copy)`` reads copy ``copy mod copies``."""
-
-    inputs: torch.Tensor  # (S * copies, 1, side, side, side) float16
-    labels: torch.Tensor  # (S * copies,) float32
-    copies: int
-
-    def rows(self, keys: np.ndarray) -> np.ndarray:
-        return keys[:, 1] * self.copies + keys[:, 2] % self.copies
+# the loop
 
 
 def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
@@ -428,82 +132,6 @@ def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
     return float(roc_auc_score(y, np.asarray(scores, np.float64).reshape(-1)))
 
 
-# -----------------------------------------------------------------------------------------------
-# files
-
-
-def state_path(out: str | os.PathLike) -> Path:
-    """The training state beside a model file (``m.safetensors`` -> ``m.train.safetensors``)."""
-    p = Path(out)
-    return p.with_name(p.name[:-len('.safetensors')] + '.train.safetensors'
-                       if p.name.endswith('.safetensors') else p.name + '.train.safetensors')
-
-
-def log_path(out: str | os.PathLike) -> Path:
-    """The CSV log beside a model file (``m.safetensors`` -> ``m.log.csv``)."""
-    p = Path(out)
-    stem = p.name[:-len('.safetensors')] if p.name.endswith('.safetensors') else p.name
-    return p.with_name(stem + '.log.csv')
-
-
-_LOG_FIELDS = ('epoch', 'samples', 'train_loss', 'val_loss', 'val_auc', 'seconds',
-               'samples_per_s', 'data_wait_s')
-
-
-def _write_log(path: Path, rows: list[dict]) -> None:
-    tmp = path.with_name(path.name + '.tmp')
-    with open(tmp, 'w', newline='', encoding='utf-8') as f:
-        w = csv.DictWriter(f, fieldnames=_LOG_FIELDS)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r.get(k, '') for k in _LOG_FIELDS})
-    os.replace(tmp, path)
-
-
-def _rng_tensors(device: torch.device) -> dict[str, torch.Tensor]:
-    out = {'rng.torch': torch.get_rng_state()}
-    if device.type == 'cuda':
-        out['rng.cuda'] = torch.cuda.get_rng_state(device)
-    return out
-
-
-def _save_state(path: Path, model: SafetyNet, opt: torch.optim.Optimizer, device: torch.device,
-                meta: dict[str, Any]) -> None:
-    extra = _rng_tensors(device)
-    names = {id(p): n for n, p in model.named_parameters()}
-    for group in opt.param_groups:
-        for p in group['params']:
-            buf = opt.state.get(p, {}).get('momentum_buffer')
-            if buf is not None:
-                extra[f'optim.{names[id(p)]}'] = buf
-    save_model(path, model, {'train_state': meta}, extra_tensors=extra)
-
-
-def _load_state(path: Path, model: SafetyNet, opt: torch.optim.Optimizer,
-                device: torch.device) -> dict[str, Any]:
-    saved, meta, extra = load_model(path, device, with_extra=True)
-    state = meta.get('train_state')
-    if not isinstance(state, dict):
-        raise ModelError(f'{path}: not a training state (no train_state in its metadata)')
-    model.load_state_dict(saved.state_dict())
-    params = dict(model.named_parameters())
-    for name, buf in extra.items():
-        if name.startswith('optim.'):
-            p = params.get(name[len('optim.'):])
-            if p is None or p.shape != buf.shape:
-                raise ModelError(f'{path}: optimizer state {name!r} does not fit the model')
-            opt.state[p]['momentum_buffer'] = buf.to(device)
-    if 'rng.torch' in extra:
-        torch.set_rng_state(extra['rng.torch'])
-    if 'rng.cuda' in extra and device.type == 'cuda':
-        torch.cuda.set_rng_state(extra['rng.cuda'], device)
-    return state
-
-
-# -----------------------------------------------------------------------------------------------
-# the loop
-
-
 @dataclass
 class _Data:
     train: ScenePack
@@ -513,49 +141,6 @@ class _Data:
     tile_cfg: TileConfig
     val_inputs: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     val_labels: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
-
-
-class ConcatScenes:
-    """Several scene sources as one (``len``, ``[i] -> Scene``, ``labels``), in order: e.g. a
-    site's hybrid set with some synth2 scenes, so fine-tuning does not forget what it knew."""
-
-    def __init__(self, sources: Sequence[Any]) -> None:
-        self.sources = list(sources)
-        self.labels = np.concatenate([_labels_of(s) for s in self.sources]) \
-            if self.sources else np.zeros(0, np.int64)
-        self._ends = np.cumsum([len(s) for s in self.sources])
-
-    def __len__(self) -> int:
-        return int(self._ends[-1]) if len(self._ends) else 0
-
-    def __getitem__(self, i: int) -> Any:
-        if not 0 <= i < len(self):
-            raise IndexError(f'scene {i} out of range ({len(self)} scenes)')
-        k = int(np.searchsorted(self._ends, i, side='right'))
-        return self.sources[k][i - (int(self._ends[k - 1]) if k else 0)]
-
-
-def _open_source(data: Any) -> tuple[Any, str]:
-    if isinstance(data, (str, os.PathLike)):
-        from landing_zone.sim.dataset import SceneDataset
-        return SceneDataset(data, 'train'), str(data)
-    if isinstance(data, (list, tuple)) and data and all(
-            isinstance(d, (str, os.PathLike)) for d in data):
-        if len(data) == 1:
-            return _open_source(data[0])
-        opened = [_open_source(d) for d in data]
-        return ConcatScenes([o[0] for o in opened]), ' + '.join(o[1] for o in opened)
-    if not hasattr(data, '__len__') or not hasattr(data, '__getitem__'):
-        raise DatasetError('data must be a dataset directory (or a list of them) or a sequence '
-                           'of scenes')
-    return data, type(data).__name__
-
-
-def _labels_of(source: Any) -> np.ndarray:
-    labels = getattr(source, 'labels', None)
-    if labels is not None and len(labels) == len(source):
-        return np.asarray(labels, np.int64)
-    return np.array([int(source[i].label) for i in range(len(source))], np.int64)
 
 
 def _autocast(device: torch.device, use_bf16: bool):
@@ -617,8 +202,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         print('train: this CPU has no native bf16; bf16 will be slow', file=sys.stderr)
 
     # the data: validation scenes held out by scene, per class
-    source, source_name = _open_source(data)
-    labels = _labels_of(source)
+    source, source_name = open_source(data)
+    labels = labels_of(source)
     if len(labels) < 2:
         raise DatasetError(f'{source_name}: at least 2 training scenes needed, got '
                            f'{len(labels)}')
@@ -653,7 +238,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                            'seconds': 0.0, 'data_wait': 0.0, 'log': [],
                            'config': asdict(cfg), 'source': source_name}
     if resume and spath.exists():
-        state = _load_state(spath, model, opt, device)
+        state = load_state(spath, model, opt, device)
         old = state.get('config', {})
         for key in _RESUME_KEYS:
             if key in old and old[key] != getattr(cfg, key):
@@ -678,7 +263,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                           seed=cfg.seed, augment=True, copies=cfg.cache_voxels,
                           dtype=torch.float16, z_shift=cfg.z_shift, yaw=cfg.yaw,
                           edge_drop=cfg.edge_drop)
-        cache = _VoxelCache(ci, cl, cfg.cache_voxels)
+        cache = VoxelCache(ci, cl, cfg.cache_voxels)
         load_seconds += time.perf_counter() - t0
     loader = None if cache is not None else make_loader(
         vol_ds, sampler, cfg.batch_size, cfg.workers, pin_memory=device.type == 'cuda')
@@ -689,8 +274,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     last_ckpt = time.monotonic()
 
     def checkpoint() -> None:
-        _save_state(spath, model, opt, device, {**run, 'config': asdict(cfg)})
-        _write_log(lpath, run['log'])
+        save_state(spath, model, opt, device, {**run, 'config': asdict(cfg)})
+        write_log(lpath, run['log'])
 
     for epoch in range(run['epoch'], cfg.epochs):
         start = run['step'] * cfg.batch_size
