@@ -19,7 +19,7 @@ from landing_zone.learn.calibration import binary_nll, expected_calibration_erro
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import predict
-from landing_zone.sim.dataset import SceneDataset
+from landing_zone.sim.shards import SceneDataset
 from landing_zone.learn.samples import voxelize
 from landing_zone.learn.scenes import ScenePack, split_scenes
 from landing_zone.learn.train import roc_auc

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import DatasetError, SimulationError
-from landing_zone.sim import dataset as ds_mod
-from landing_zone.sim.dataset import (SWEEPS, SceneDataset, scene_plan, scene_rng,
-                                      select_scenes, simulate_dataset)
+from landing_zone.sim import shards as shards_mod
+from landing_zone.sim import sweeps as sweeps_mod
+from landing_zone.sim.dataset import simulate_dataset
+from landing_zone.sim.shards import SceneDataset
+from landing_zone.sim.sweeps import SWEEPS, scene_plan, scene_rng, select_scenes
 from landing_zone.sim.obstacles import get_model, models
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,8 +78,8 @@ def test_test_group_models_never_in_train_scenes():
     for i in select_scenes('synth2', 1500):
         plan = scene_plan('synth2', int(i))
         if plan['label'] == 0:
-            name = ds_mod._choose_model(SWEEPS['synth2'], plan['split'],
-                                        scene_rng('synth2', int(i), 0))
+            name = sweeps_mod.choose_model(SWEEPS['synth2'], plan['split'],
+                                           scene_rng('synth2', int(i), 0))
             drawn[plan['split']].add(name)
     assert not drawn['train'] & test_models
     assert drawn['test'] <= test_models
@@ -90,7 +92,7 @@ def test_dataset_files_and_loader(small):
     root, summary = small
     assert summary['scenes'] == 6 and summary['generated'] == 6
     meta = json.loads((root / 'meta.json').read_text())
-    assert meta['complete'] and meta['format_version'] == ds_mod.FORMAT_VERSION
+    assert meta['complete'] and meta['format_version'] == shards_mod.FORMAT_VERSION
     assert meta['dataset'] == 'synth2' and meta['seed'] == 5
     assert set(meta['obstacle_split']['train']).isdisjoint(meta['obstacle_split']['test'])
     train, test = SceneDataset(root, 'train'), SceneDataset(root, 'test')
@@ -171,9 +173,9 @@ def test_interrupted_run_resumes(small, tmp_path):
 def test_delta_coding_is_exact(rng):
     mm = rng.integers(-32768, 32768, (5000, 3)).astype(np.int16)
     mm[:3] = [[32767, -32768, 0], [-32768, 32767, 1], [32767, 32767, -1]]  # worst jumps
-    enc = ds_mod._delta_encode(mm)
+    enc = shards_mod._delta_encode(mm)
     assert enc.dtype == np.int16 and enc.shape == (3, 5000)
-    np.testing.assert_array_equal(ds_mod._delta_decode(enc), mm)
+    np.testing.assert_array_equal(shards_mod._delta_decode(enc), mm)
 
 
 def test_incomplete_or_missing_dataset_is_an_error(tmp_path):

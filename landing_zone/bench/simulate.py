@@ -20,8 +20,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from landing_zone.sim.dataset import (SWEEPS, _shard_arrays, _write_npz, generate_scene,
-                                      select_scenes)
+from landing_zone.sim.shards import shard_arrays, write_npz
+from landing_zone.sim.sweeps import SWEEPS, generate_scene, select_scenes
 
 
 def _one(dataset: str, scenes: int, seed: int) -> dict:
@@ -36,7 +36,7 @@ def _one(dataset: str, scenes: int, seed: int) -> dict:
     total = time.perf_counter() - t_all
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / 'shard.npz'
-        _write_npz(path, _shard_arrays(records))
+        write_npz(path, shard_arrays(records))
         nbytes = path.stat().st_size
     rays = sum(r['rays'] for r in records)
     stages = {k: sum(r['timings'][k] for r in records) for k in records[0]['timings']}

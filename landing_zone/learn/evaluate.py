@@ -417,7 +417,7 @@ def evaluate(data: str | os.PathLike,
     Returns:
         The RESULTS.json dictionary, plus 'table' (markdown).
     """
-    from landing_zone.sim.dataset import SceneDataset
+    from landing_zone.sim.shards import SceneDataset
 
     if split not in ('test', 'train'):
         raise ConfigError(f"split must be 'test' or 'train', got {split!r}")

@@ -145,7 +145,7 @@ class ConcatScenes:
 
 def open_source(data: Any) -> tuple[Any, str]:
     if isinstance(data, (str, os.PathLike)):
-        from landing_zone.sim.dataset import SceneDataset
+        from landing_zone.sim.shards import SceneDataset
         return SceneDataset(data, 'train'), str(data)
     if isinstance(data, (list, tuple)) and data and all(
             isinstance(d, (str, os.PathLike)) for d in data):

@@ -155,9 +155,9 @@ def column_rays(points: np.ndarray, cloud: np.ndarray, origins: np.ndarray,
 
 def _tile_split(tiles: np.ndarray) -> np.ndarray:
     """A fifth of the tiles (by a hash of their index) are test tiles."""
-    from landing_zone.sim.dataset import TEST_FRACTION, _mix
+    from landing_zone.sim.sweeps import TEST_FRACTION, mix
     keys = (tiles[:, 0].astype(np.int64) & 0xFFFFFFFF) << 32 | (tiles[:, 1] & 0xFFFFFFFF)
-    h = _mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
+    h = mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
     return h < np.uint64(int(1000 * TEST_FRACTION))
 
 
@@ -254,7 +254,7 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
     """One scene: the column's rays in the patch frame, with an obstacle if it is unsafe."""
     from landing_zone.sim.alteration import RANGE_SIGMA, alter_returns
     from landing_zone.sim.placement import SINK, ground_height, ground_radius
-    from landing_zone.sim.dataset import SWEEPS, _choose_model
+    from landing_zone.sim.sweeps import SWEEPS, choose_model
     from landing_zone.sim.mesh import OBSTACLE
     from landing_zone.sim.obstacles import Obstacle, get_model
 
@@ -268,7 +268,7 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
     obstacle = None
     altered = 0
     if plan['unsafe'][t]:
-        model = get_model(_choose_model(SWEEPS['synth2'], split, rng))
+        model = get_model(choose_model(SWEEPS['synth2'], split, rng))
         # as simulate_patch: half inside the tile for any yaw, half straddling its edge
         if rng.uniform() < 0.5:
             free = 0.5 - model.radius
@@ -310,7 +310,8 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
 def _hybrid_meta(flights: list[dict[str, Any]], shards: list[dict[str, Any]],
                  args: dict[str, Any], split_by: str, n_scenes: int,
                  counts: dict[str, dict[str, int]]) -> dict[str, Any]:
-    from landing_zone.sim.dataset import FORMAT_VERSION, SWEEPS
+    from landing_zone.sim.shards import FORMAT_VERSION
+    from landing_zone.sim.sweeps import SWEEPS
     from landing_zone.sim.obstacles import models
     from landing_zone.sim.scene import PatchConfig
 
@@ -375,8 +376,9 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     from scipy.spatial import cKDTree
 
     from landing_zone.sim.recorded import read_flight
-    from landing_zone.sim.dataset import (_shard_arrays, _shard_complete, _shard_name,
-                                          _write_json, _write_npz, prepare_output, progress_bar)
+    from landing_zone.sim.dataset import progress_bar
+    from landing_zone.sim.shards import (shard_arrays, shard_complete, shard_name, write_json,
+                                         write_npz, prepare_output)
 
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]
@@ -421,7 +423,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
                              'returns': plan['returns'], 'labels': plan['labels']})
         for k in range(0, n, shard_size):
             sel = range(k, min(k + shard_size, n))
-            shards.append({'file': _shard_name(len(shards)), 'scenes': len(sel),
+            shards.append({'file': shard_name(len(shards)), 'scenes': len(sel),
                            'first_index': scene + k, 'flight': f,
                            'test': ''.join('1' if plan['splits'][t] == 'test' else '0'
                                            for t in sel),
@@ -443,7 +445,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     try:
         for plan in plans:
             mine = [s for s in shards if s['flight'] == plan['index']]
-            todo = [s for s in mine if not _shard_complete(
+            todo = [s for s in mine if not shard_complete(
                 out / s['file'], list(range(s['first_index'], s['first_index'] + s['scenes'])))]
             done += sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo)
             bar.update(sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo))
@@ -459,14 +461,14 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
                         t = idx - plan['first_scene']
                         records.append(_patch_record(plan, fr, tree, t, rays[t], idx,
                                                      args['seed']))
-                    _write_npz(out / s['file'], _shard_arrays(records))
+                    write_npz(out / s['file'], shard_arrays(records))
                     generated += len(records)
                     bar.update(len(records))
                 del fr, tree, rays
     finally:
         bar.close()
     meta['complete'] = True
-    _write_json(meta_path, meta)
+    write_json(meta_path, meta)
     seconds = time.perf_counter() - t_start
     nbytes = sum(f.stat().st_size for f in (out / 'shards').glob('*.npz'))
     return {'dataset': 'hybrid', 'out': str(out), 'scenes': scene, 'generated': generated,

@@ -148,7 +148,7 @@ def render_library(out: str | os.PathLike) -> Path:
 
 
 def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
-    from landing_zone.sim.dataset import SceneDataset
+    from landing_zone.sim.shards import SceneDataset
     ds = SceneDataset(root, split)
     if not -len(ds) <= index < len(ds):
         raise DatasetError(f'scene {index} out of range: {root} ({split}) holds {len(ds)}')
