@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from landing_zone.config import AssessorConfig
 from landing_zone.errors import InvalidCloudError, ModelError
@@ -158,7 +159,8 @@ class Assessment:
     @property
     def known(self) -> np.ndarray:
         """(T,) bool, tiles that were judged (p_safe is a number)."""
-        return np.isfinite(self.p_safe)
+        out: np.ndarray = np.isfinite(self.p_safe)
+        return out
 
     def grid(self, values: np.ndarray) -> np.ndarray:
         """A per-tile array as the (X, Y) grid (cell (i, j) is tile ``origin + (i, j)``)."""
@@ -371,14 +373,15 @@ class Assessor:
                 self._place(float(origin[0]), float(origin[1]),
                             ground if z_moved and ground is not None else float(c[2]))
         elif z_moved and not self._placed_z and ground is not None:
-            self._place(*self.config.center, ground)  # type: ignore[misc]
+            assert self.config.center is not None  # fixed mode
+            self._place(self.config.center[0], self.config.center[1], ground)
         self._placed_z = self._placed_z or ground is not None
         with self._state_lock:
             self._state.move(self._tile_origin())
 
     # -- the pipeline -----------------------------------------------------------------------
 
-    def integrate(self, points: np.ndarray, origin: Sequence[float],
+    def integrate(self, points: np.ndarray, origin: ArrayLike,
                   stamp: float | None = None) -> IntegrationStats:
         """Add one registered cloud to the map (moving the map first in follow mode).
 
@@ -423,7 +426,8 @@ class Assessor:
         if self._reach and grid.any():
             from scipy.ndimage import binary_dilation
             grid = binary_dilation(grid, np.ones((2 * self._reach + 1,) * 2, bool))
-        return np.argwhere(grid).astype(np.int64) + origin
+        out: np.ndarray = np.argwhere(grid).astype(np.int64) + origin
+        return out
 
     def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copy of the counts the tiles' inputs read: their bounding box, padding included,

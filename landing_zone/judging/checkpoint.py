@@ -41,7 +41,8 @@ def _weights_digest(tensors: dict[str, torch.Tensor]) -> str:
     return sha.hexdigest()
 
 
-def save_model(path: str | os.PathLike, model: SafetyNet, metadata: dict[str, Any] | None = None,
+def save_model(path: str | os.PathLike[str], model: SafetyNet,
+               metadata: dict[str, Any] | None = None,
                extra_tensors: dict[str, torch.Tensor] | None = None) -> None:
     """Write the weights and their metadata to a safetensors file (atomically).
 
@@ -84,7 +85,7 @@ def _one_line(err: BaseException) -> str:
     return text[0] if text else type(err).__name__
 
 
-def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The metadata of a checkpoint without reading its weights.
 
     Raises:
@@ -107,10 +108,11 @@ def read_metadata(path: str | os.PathLike) -> dict[str, Any]:
     found = meta.get('format') if isinstance(meta, dict) else None
     if found != FORMAT:
         raise ModelError(f'{p}: unknown model format {found!r}, expected {FORMAT!r}')
-    return meta
+    out: dict[str, Any] = meta
+    return out
 
 
-def load_model(path: str | os.PathLike, device: str | torch.device = 'cpu',
+def load_model(path: str | os.PathLike[str], device: str | torch.device = 'cpu',
                with_extra: bool = False) -> Any:
     """Rebuild a net from a checkpoint's metadata alone and load its weights.
 

@@ -70,7 +70,9 @@ class Predictor:
         if self._net is not None and self._key == key:
             return self._net
         fmt = torch.channels_last_3d if channels_last else torch.contiguous_format
-        self._net = copy.deepcopy(model).to(device=device, dtype=dtype, memory_format=fmt).eval()
+        net = copy.deepcopy(model).to(device=device, dtype=dtype)
+        # Module.to's memory_format is not in torch's stubs; it converts the 5-D weights
+        self._net = net.to(memory_format=fmt).eval()  # type: ignore[call-overload]
         self._key = key
         return self._net
 

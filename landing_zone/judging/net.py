@@ -47,7 +47,8 @@ class ConvBlock(nn.Module):
         self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.drop(F.relu(self.conv(x)))  # (B, C_out, D-k+1, H-k+1, W-k+1)
+        out: torch.Tensor = self.drop(F.relu(self.conv(x)))  # (B, C_out, D-k+1, H-k+1, W-k+1)
+        return out
 
 
 class PoolBlock(nn.Module):
@@ -72,7 +73,8 @@ class DenseBlock(nn.Module):
         self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.drop(F.relu(self.fc(x)))  # (B, out)
+        out: torch.Tensor = self.drop(F.relu(self.fc(x)))  # (B, out)
+        return out
 
 
 # --- config ------------------------------------------------------------------------------------
@@ -132,6 +134,7 @@ class SafetyNet(nn.Module):
         for m in self.modules():
             if isinstance(m, (nn.Conv3d, nn.Linear)):
                 nn.init.xavier_uniform_(m.weight)
+                assert m.bias is not None  # both layer types are built with a bias
                 nn.init.zeros_(m.bias)
 
     @property

@@ -52,7 +52,7 @@ class LandingSite:
     confidence: float
     index: tuple[int, int]
 
-    def to_dict(self) -> dict[str, float]:
+    def to_dict(self) -> dict[str, float | None]:
         """The report's form (docs/INTERFACES.md §3), plus z and confidence."""
         return {'x': self.x, 'y': self.y, 'z': None if math.isnan(self.z) else self.z,
                 'p_safe': self.p_safe, 'confidence': self.confidence}
@@ -81,7 +81,8 @@ def footprint_mask(radius: float, tile_size: float) -> np.ndarray:
     # trim empty border rows so the mask stays centred and small
     keep = np.flatnonzero(mask.any(axis=1))
     r = int(max(abs(keep[0] - m), abs(keep[-1] - m)))
-    return mask[m - r:m + r + 1, m - r:m + r + 1]
+    out: np.ndarray = mask[m - r:m + r + 1, m - r:m + r + 1]
+    return out
 
 
 def site_probabilities(p_safe: np.ndarray, confidence: np.ndarray, radius: float,

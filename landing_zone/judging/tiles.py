@@ -27,12 +27,12 @@ network is trained on what it will see.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numba as nb
 import numpy as np
+from numpy.typing import ArrayLike
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError
@@ -105,7 +105,7 @@ def tile_voxels(voxel_size: float, config: TileConfig) -> int:
     return tv
 
 
-def tiles_in_box(lo: Sequence[int], shape: Sequence[int], tile_vox: int) -> np.ndarray:
+def tiles_in_box(lo: ArrayLike, shape: ArrayLike, tile_vox: int) -> np.ndarray:
     """Global indices of the tiles whose XY footprint lies wholly inside a voxel box.
 
     Args:
@@ -116,8 +116,9 @@ def tiles_in_box(lo: Sequence[int], shape: Sequence[int], tile_vox: int) -> np.n
     Returns:
         (T, 2) int64, ordered by x then y.
     """
-    k0 = -(-np.asarray(lo[:2], np.int64) // tile_vox)  # ceil
-    k1 = (np.asarray(lo[:2], np.int64) + np.asarray(shape[:2], np.int64)) // tile_vox
+    lo_xy = np.asarray(lo, np.int64).reshape(-1)[:2]
+    k0 = -(-lo_xy // tile_vox)  # ceil
+    k1 = (lo_xy + np.asarray(shape, np.int64).reshape(-1)[:2]) // tile_vox
     kx = np.arange(k0[0], max(k1[0], k0[0]), dtype=np.int64)
     ky = np.arange(k0[1], max(k1[1], k0[1]), dtype=np.int64)
     gx, gy = np.meshgrid(kx, ky, indexing='ij')
@@ -142,8 +143,8 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 
 # --- the compiled kernel -----------------------------------------------------------------------
 
-def _tile_kernel(hits, passes, lo, tiles, tv, pad, quantile, occupied, out, ground_k, nobs,
-                 nret):
+def _tile_kernel(  # type: ignore[no-untyped-def]
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, out, ground_k, nobs, nret):
     """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
 
     ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
@@ -221,7 +222,7 @@ _SERIAL_TILES = 4
 
 # --- public API --------------------------------------------------------------------------------
 
-def _as_tiles(tiles) -> np.ndarray:
+def _as_tiles(tiles: ArrayLike) -> np.ndarray:
     arr = np.asarray(tiles)
     if arr.ndim != 2 or arr.shape[1] != 2 or (arr.size and arr.dtype.kind not in 'iu'):
         raise ConfigError(f'tiles must be a (T, 2) integer array of tile indices, got shape '
@@ -229,7 +230,7 @@ def _as_tiles(tiles) -> np.ndarray:
     return np.ascontiguousarray(arr, np.int64)
 
 
-def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: Sequence[int],
+def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
                       voxel_size: float, config: TileConfig | None = None,
                       tiles: np.ndarray | None = None) -> TileBatch:
     """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
@@ -330,8 +331,8 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     box_hi = np.concatenate([(idx.max(axis=0) + 1) * tv + cfg.padding, hi[2:]])
     box_lo = np.clip(box_lo, lo, hi)
     box_hi = np.clip(box_hi, box_lo, hi)
-    shape = tuple(int(v) for v in box_hi - box_lo)
-    bufs = buffers.get(shape) if buffers is not None else None
+    sx, sy, sz = (int(v) for v in box_hi - box_lo)
+    bufs = buffers.get((sx, sy, sz)) if buffers is not None else None
     h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
     return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx)
 
@@ -419,7 +420,8 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
         arr = np.asarray(a, np.float64)
         if arr.ndim == 0 or arr.shape[-1] != 3:
             return arr  # let DensityMap.integrate name the problem
-        return arr @ rot.T + offset
+        placed: np.ndarray = arr @ rot.T + offset
+        return placed
 
     dmap.integrate(place(points), place(origins))
     h, p = dmap.counts()

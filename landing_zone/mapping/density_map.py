@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numba as nb
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
@@ -35,7 +36,7 @@ def _round_up(n: int, m: int) -> int:
     return (n + m - 1) // m * m
 
 
-def _aligned_zeros(n: int, dtype, align: int = 64) -> np.ndarray:
+def _aligned_zeros(n: int, dtype: DTypeLike, align: int = 64) -> np.ndarray:
     """Zeroed 1-D array whose data starts on a cache-line boundary (bricks = whole lines).
 
     The zeros are written, not just mapped: the pages are committed now rather than faulted in
@@ -51,7 +52,7 @@ def _aligned_zeros(n: int, dtype, align: int = 64) -> np.ndarray:
 # --- compiled storage operations ---------------------------------------------------------------
 
 @nb.njit(cache=True, nogil=True)
-def _window_tables(dims, wlo, wn, qlo, qn):
+def _window_tables(dims, wlo, wn, qlo, qn):  # type: ignore[no-untyped-def]
     """What every read of a box (global indices) needs: the part of the box inside the window
     ([r0, r1) in box coordinates), the brick-layout offsets of its y and z positions and the
     x stride. Called once per read, so passing arrays costs nothing per voxel."""
@@ -74,7 +75,8 @@ def _window_tables(dims, wlo, wn, qlo, qn):
 
 
 @nb.njit(cache=True, nogil=True)
-def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
+def _gather_hot(  # type: ignore[no-untyped-def]
+        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
     """Copy the hot bytes of the requested box (global indices) into logical order."""
     r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
@@ -92,7 +94,8 @@ def _gather_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out
 
 
 @nb.njit(cache=True)
-def _gather_cold(cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
+def _gather_cold(  # type: ignore[no-untyped-def]
+        cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
     """Add 256 x the cold high bytes of every brick that has them (rare) to the output."""
     byn = dims[1] // BRICK
     bzn = dims[2] // BRICK
@@ -127,7 +130,8 @@ def _gather_cold(cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
 
 
 @nb.njit(cache=True, nogil=True)
-def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
+def _density_hot(  # type: ignore[no-untyped-def]
+        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
     """Density straight from the hot bytes (valid while no cold block exists)."""
     r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
@@ -145,7 +149,8 @@ def _density_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
 
 
 @nb.njit(cache=True, nogil=True)
-def _observed_hot(chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
+def _observed_hot(  # type: ignore[no-untyped-def]
+        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
     """Observed flags straight from the hot bytes (valid while no cold block exists)."""
     r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
@@ -172,6 +177,7 @@ def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -
     full0 = -(-s0 // BRICK)
     full1 = s1 // BRICK
     planes = list(range(s0, min(s1, full0 * BRICK))) + list(range(max(full1 * BRICK, s0), s1))
+    sel: list[slice | int]
     if full1 > full0:
         sel = [slice(None)] * 6
         sel[axis] = slice(full0, full1)
@@ -179,14 +185,14 @@ def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -
     else:
         planes = list(range(s0, s1))
     for s in planes:
-        sel = [slice(None)] * 6
+        sel = [slice(None)] * 6  # (one axis's bricks and its voxel in the brick)
         sel[axis] = s // BRICK
         sel[3 + axis] = s % BRICK
         v[tuple(sel)] = 0
 
 
 @nb.njit(cache=True)
-def _clear_cold(cdir, pool, row_part, dims, s0, s1):
+def _clear_cold(cdir, pool, row_part, dims, s0, s1):  # type: ignore[no-untyped-def]
     """Zero the cold high bytes of the storage box [s0, s1) (no wrap)."""
     sy_stride = (dims[2] // BRICK) * 64
     sx_stride = (dims[1] // BRICK) * sy_stride
@@ -204,7 +210,7 @@ def _clear_cold(cdir, pool, row_part, dims, s0, s1):
 
 
 @nb.njit(cache=True)
-def _compact_cold(cdir, pool, used, row_part, dims):
+def _compact_cold(cdir, pool, used, row_part, dims):  # type: ignore[no-untyped-def]
     """Give back cold blocks that scrolling left all zero, keeping each part's pool dense."""
     byn = dims[1] // BRICK
     bzn = dims[2] // BRICK
@@ -368,7 +374,8 @@ class DensityMap:
     def contains_index(self, g: np.ndarray) -> np.ndarray:
         """Whether global lattice indices (..., 3) lie in the window."""
         g = np.asarray(g)
-        return np.all((g >= self.lo) & (g < self.hi), axis=-1)
+        inside: np.ndarray = np.all((g >= self.lo) & (g < self.hi), axis=-1)
+        return inside
 
     # -- integration ------------------------------------------------------------------------
 
@@ -446,7 +453,7 @@ class DensityMap:
         """
         return self.set_lo(self._lo_for(center))
 
-    def set_lo(self, lo: Sequence[int]) -> int:
+    def set_lo(self, lo: ArrayLike) -> int:
         """Move the window so that its lower corner is the global lattice index ``lo``.
 
         Cells that leave are discarded; cells that enter start unobserved. Only the entering
@@ -525,6 +532,7 @@ class DensityMap:
             self._dirty[rel[keep, 0], rel[keep, 1]] = 1
         if delta is None:
             return
+        assert old_lo is not None  # a move passes both
         if delta[2] != 0:
             self._dirty[:] = 1  # cells entered or left in every column
             return
@@ -581,7 +589,8 @@ class DensityMap:
 
     # -- reading ----------------------------------------------------------------------------
 
-    def _query(self, lo, shape) -> tuple[np.ndarray, np.ndarray]:
+    def _query(self, lo: ArrayLike | None, shape: ArrayLike | None
+               ) -> tuple[np.ndarray, np.ndarray]:
         q_lo = self.lo.copy() if lo is None else np.asarray(lo).reshape(-1)
         q_n = self._n.copy() if shape is None else np.asarray(shape).reshape(-1)
         if q_lo.shape != (3,) or not np.issubdtype(q_lo.dtype, np.integer):
@@ -595,7 +604,7 @@ class DensityMap:
         # threads only pay for themselves on large reads (the tiler's full-map reads)
         return 8 if size >= 1 << 20 else 1
 
-    def counts(self, lo: Sequence[int] | None = None, shape: Sequence[int] | None = None,
+    def counts(self, lo: ArrayLike | None = None, shape: ArrayLike | None = None,
                out: tuple[np.ndarray, np.ndarray] | None = None
                ) -> tuple[np.ndarray, np.ndarray]:
         """Hit and pass counts of a box of the global lattice, in world (x, y, z) order.
@@ -633,8 +642,8 @@ class DensityMap:
                              self._n, q_lo, q_n, out_h, out_p)
         return out_h, out_p
 
-    def density(self, lo: Sequence[int] | None = None,
-                shape: Sequence[int] | None = None) -> np.ndarray:
+    def density(self, lo: ArrayLike | None = None,
+                shape: ArrayLike | None = None) -> np.ndarray:
         """Posterior mean density ``(hits + 1) / (hits + passes + 2)`` of a box, float32.
 
         Voxels outside the window (and unobserved ones) read 0.5.
@@ -643,7 +652,8 @@ class DensityMap:
         if self._used.any():
             h, p = self.counts(q_lo, q_n)
             hf = h.astype(np.float64)
-            return ((hf + 1.0) / (hf + p + 2.0)).astype(np.float32)
+            dens: np.ndarray = ((hf + 1.0) / (hf + p + 2.0)).astype(np.float32)
+            return dens
         out = np.full(tuple(q_n), 0.5, np.float32)
         if out.size:
             chunks = self._read_chunks(out.size)
@@ -651,13 +661,14 @@ class DensityMap:
                                              self.lo, self._n, q_lo, q_n, out), self._runner)
         return out
 
-    def observed(self, lo: Sequence[int] | None = None,
-                 shape: Sequence[int] | None = None) -> np.ndarray:
+    def observed(self, lo: ArrayLike | None = None,
+                 shape: ArrayLike | None = None) -> np.ndarray:
         """Whether each voxel of a box was hit or passed at least once (bool)."""
         q_lo, q_n = self._query(lo, shape)
         if self._used.any():
             h, p = self.counts(q_lo, q_n)
-            return (h | p) != 0
+            seen: np.ndarray = (h | p) != 0
+            return seen
         out = np.zeros(tuple(q_n), bool)
         if out.size:
             chunks = self._read_chunks(out.size)
@@ -687,7 +698,7 @@ class DensityMap:
                 f'{hi_m.round(3).tolist()}] m, {self.nbytes / 1e6:.1f} MB)')
 
 
-def _part_records(nparts: int, shape: tuple[int, int]) -> np.ndarray:
+def _part_records(nparts: int, shape: tuple[int, ...]) -> np.ndarray:
     """One dirty-tile record per part, 64 bytes apart so the threads never share a line."""
     pad = 64 // max(shape[1], 1) + 1
     return np.zeros((nparts, shape[0] + pad, shape[1]), np.uint8)
@@ -717,7 +728,7 @@ def _ring_ranges(g0: int, g1: int, m: int) -> list[tuple[int, int]]:
     return [(s0, m), (0, s0 + length - m)]
 
 
-def _as_points(arr, name: str, allow_single: bool = False) -> np.ndarray:
+def _as_points(arr: ArrayLike, name: str, allow_single: bool = False) -> np.ndarray:
     """Validate an (N, 3) (or (3,)) numeric array; C-contiguous float64 out."""
     try:
         a = np.asarray(arr)

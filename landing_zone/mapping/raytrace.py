@@ -41,8 +41,10 @@ from __future__ import annotations
 import itertools
 import math
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -110,7 +112,8 @@ class IntegrationStats:
 # --- per-axis pieces of the clip (scalars only: numba inlines them without array overhead) ---
 
 @nb.njit(cache=True, inline='always', error_model='numpy')
-def _axis_entry(o: float, d: float, g0: int, g1: int, blo: int, bhi: int):
+def _axis_entry(o: float, d: float, g0: int, g1: int, blo: int, bhi: int
+                ) -> tuple[float, int, bool]:
     """The event that brings one axis into [blo, bhi): (t, class, possible).
 
     Class 0: an up-step (the new cell holds the crossing point); class 1: a down-step (the
@@ -169,8 +172,9 @@ def _axis_state(o: float, d: float, g0: int, g1: int, te: float, ce: int) -> int
 
 
 @nb.njit(cache=True, inline='always', error_model='numpy')
-def _first_cell(ox, oy, oz, dx, dy, dz, g0x, g0y, g0z, g1x, g1y, g1z,
-                blx, bly, blz, bhx, bhy, bhz):
+def _first_cell(  # type: ignore[no-untyped-def]
+        ox, oy, oz, dx, dy, dz, g0x, g0y, g0z, g1x, g1y, g1z,
+        blx, bly, blz, bhx, bhy, bhz):
     """First cell of the segment inside the box [bl, bh): (inside, cx, cy, cz)."""
     tx, kx, okx = _axis_entry(ox, dx, g0x, g1x, blx, bhx)
     ty, ky, oky = _axis_entry(oy, dy, g0y, g1y, bly, bhy)
@@ -205,7 +209,8 @@ def _first_cell(ox, oy, oz, dx, dy, dz, g0x, g0y, g0z, g1x, g1y, g1z,
 # --- batch preparation -------------------------------------------------------------------------
 
 @nb.njit(cache=True, error_model='numpy')
-def _prepare(points, origins, voxel_size, blo, bhi, sort_tile, uo, up, order, key):
+def _prepare(  # type: ignore[no-untyped-def]
+        points, origins, voxel_size, blo, bhi, sort_tile, uo, up, order, key):
     n = points.shape[0]
     single = origins.shape[0] == 1
     nonfinite = 0
@@ -279,7 +284,8 @@ def _prepare(points, origins, voxel_size, blo, bhi, sort_tile, uo, up, order, ke
 
 
 def prepare_rays(points: np.ndarray, origins: np.ndarray, voxel_size: float,
-                 box_lo: np.ndarray, box_hi: np.ndarray, sort_tile: int = SORT_TILE):
+                 box_lo: np.ndarray, box_hi: np.ndarray, sort_tile: int = SORT_TILE
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, np.ndarray]:
     """Convert a batch to lattice units, drop what cannot be traced, sort the rest.
 
     Args:
@@ -309,7 +315,7 @@ def prepare_rays(points: np.ndarray, origins: np.ndarray, voxel_size: float,
 # --- the walk ----------------------------------------------------------------------------------
 
 @nb.njit(cache=True, nogil=True, error_model='numpy')
-def _carry(hot, cold_at, idx, cdir, pool, used, part):
+def _carry(hot, cold_at, idx, cdir, pool, used, part):  # type: ignore[no-untyped-def]
     """A hot byte at 255 gets one more count: carry into its brick's cold block.
 
     Rare (once per 256 counts of a voxel at most), so a call is fine here; the block is taken
@@ -330,8 +336,9 @@ def _carry(hot, cold_at, idx, cdir, pool, used, part):
 
 
 @nb.njit(cache=True, nogil=True, error_model='numpy')
-def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
-                passes, cdir, pool, pool_limit, used, resume, dirty, dlo, tile_vox, counters):
+def _trace_part(  # type: ignore[no-untyped-def]
+        part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
+        passes, cdir, pool, pool_limit, used, resume, dirty, dlo, tile_vox, counters):
     """Walk the part of every ray inside the storage slab ``part`` owns.
 
     ``tabx[g - wlo[0]]`` (and y, z) is the share of axis index ``g`` in the linear storage
@@ -527,9 +534,12 @@ def _trace_part(part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, ta
     counters[part, 1] = nv
 
 
-def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes, cdir, pool,
-               pool_limit, used, resume, dirty, dirty_lo, tile_vox, counters,
-               runner: PartRunner | None = None) -> None:
+def trace_rays(uo: np.ndarray, up: np.ndarray, order: np.ndarray, nvalid: int,
+               box_lo: np.ndarray, box_hi: np.ndarray, yint: np.ndarray,
+               tables: tuple[np.ndarray, np.ndarray, np.ndarray], hits: np.ndarray,
+               passes: np.ndarray, cdir: np.ndarray, pool: np.ndarray, pool_limit: int,
+               used: np.ndarray, resume: np.ndarray, dirty: np.ndarray, dirty_lo: np.ndarray,
+               tile_vox: int, counters: np.ndarray, runner: PartRunner | None = None) -> None:
     """Walk the prepared rays into the storage arrays (see :class:`DensityMap`).
 
     Each part stops before a ray that could exhaust its cold pool and leaves its position in
@@ -555,7 +565,7 @@ def trace_rays(uo, up, order, nvalid, box_lo, box_hi, yint, tables, hits, passes
 class _Batch:
     """Parts of one job handed out to whichever thread asks first."""
 
-    def __init__(self, kernel, nparts: int, args: tuple) -> None:
+    def __init__(self, kernel: Callable[..., None], nparts: int, args: tuple[Any, ...]) -> None:
         self.kernel = kernel
         self.args = args
         self.nparts = nparts
@@ -594,7 +604,7 @@ class PartRunner:
         self._pool: ThreadPoolExecutor | None = None
         self._lock = threading.Lock()
 
-    def run(self, kernel, nparts: int, args: tuple) -> None:
+    def run(self, kernel: Callable[..., None], nparts: int, args: tuple[Any, ...]) -> None:
         """Call ``kernel(part, *args)`` for every part, on up to numba's number of threads.
 
         The kernel must be compiled with ``nogil=True`` and parts must not write the same
@@ -618,7 +628,9 @@ class PartRunner:
         with self._lock:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(
-                    max_workers=max(nb.config.NUMBA_NUM_THREADS - 1, 1),
+                    # numba's config module sets its names at run time (no stubs)
+                    max_workers=max(nb.config.NUMBA_NUM_THREADS - 1,  # type: ignore[attr-defined]
+                                    1),
                     thread_name_prefix='raytrace')
             return self._pool
 
@@ -630,7 +642,8 @@ class PartRunner:
             pool.shutdown(wait=True)
 
 
-def run_parts(kernel, nparts: int, args: tuple, runner: PartRunner | None = None) -> None:
+def run_parts(kernel: Callable[..., None], nparts: int, args: tuple[Any, ...],
+              runner: PartRunner | None = None) -> None:
     """Call ``kernel(part, *args)`` for every part: on ``runner``'s threads, or in turn."""
     if runner is None:
         for part in range(nparts):
