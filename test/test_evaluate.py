@@ -10,8 +10,9 @@ import torch
 from landing_zone.learn.calibration import (binary_nll, expected_calibration_error,
                                             fit_temperature, reliability)
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.learn.evaluate import (class_models, confident_mistakes, evaluate_methods,
-                                         evaluate_scenes, markdown_table, results_json)
+from landing_zone.learn.evaluate import (evaluate_methods, evaluate_scenes, markdown_table,
+                                         results_json)
+from landing_zone.learn.figures import class_models, confident_mistakes
 from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from test_train import quick_config, toy_scenes
