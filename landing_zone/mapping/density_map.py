@@ -20,8 +20,9 @@ from numpy.typing import ArrayLike, DTypeLike
 
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
+from landing_zone.mapping.parts import PartRunner, run_parts
 from landing_zone.mapping.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
-                                           PartRunner, prepare_rays, run_parts, trace_rays)
+                                           prepare_rays, trace_rays)
 
 __all__ = ['DensityMap', 'IntegrationStats', 'COUNT_MAX']
 
