@@ -7,7 +7,7 @@ package_name = 'landing_zone'
 
 setup(
     name=package_name,
-    version='0.2.0',
+    version='0.3.0',
     packages=find_packages(include=['landing_zone', 'landing_zone.*',
                                     'msg_adapters', 'msg_adapters.*']),
     package_data={'landing_zone': ['py.typed']},
