@@ -194,7 +194,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     device = torch.device(cfg.device)
     # Measured on an H100 with the paper's net, channels-last, ms per sample for forward +
     # backward + SGD: batch 20 fp32 0.116, bf16 0.146; batch 128 fp32 0.094, bf16 0.080. On
-    # CPUs bf16 was slower wherever measured (see model.predict).
+    # CPUs bf16 was slower wherever measured (see judging.inference.Predictor).
     use_bf16 = cfg.precision == 'bf16' or (cfg.precision == 'auto' and device.type == 'cuda'
                                            and cfg.batch_size >= 64)
     eval_precision = 'bf16' if use_bf16 else 'fp32'
