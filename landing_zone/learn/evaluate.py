@@ -184,7 +184,7 @@ def evaluate(data: str | os.PathLike,
     """Evaluate the CNN (and with ``baselines`` the paper's baselines) on a dataset split.
 
     Args:
-        data: dataset directory (see :mod:`landing_zone.sim.dataset`).
+        data: dataset directory (see :mod:`landing_zone.sim.shards`).
         model: model file, or several (each its own row, e.g. both of the paper's nets, or a
             model before and after fine-tuning); default the shipped model (unless only
             baselines are asked for and none is shipped).

@@ -8,7 +8,7 @@ Real grass, ground and sensor noise come from the flights; the obstacles come fr
 simulator's library and are put in by cutting short the rays that would have hit them
 (:func:`landing_zone.sim.alteration.alter_returns`), so the set is labelled exactly, like
 synth1/2, but its clutter is the flights'. The result has the synth datasets' format
-(``meta.json`` and ``shards/*.npz``, see :mod:`landing_zone.sim.dataset`), so
+(``meta.json`` and ``shards/*.npz``, see :mod:`landing_zone.sim.shards`), so
 :class:`SceneDataset`, ``landing-zone train`` and ``landing-zone evaluate`` (and the
 augmentation) read it unchanged.
 
