@@ -31,7 +31,8 @@ bench: $(STAMP)
 	$(VENV)/bin/landing-zone bench
 
 lint: $(STAMP)
-	$(PY) -m flake8 landing_zone msg_adapters test
+	$(PY) -m flake8 landing_zone msg_adapters test scripts
+	$(PY) -m mypy
 
 clean:
 	rm -rf $(VENV) build install log *.egg-info

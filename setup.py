@@ -7,7 +7,7 @@ package_name = 'landing_zone'
 
 setup(
     name=package_name,
-    version='0.2.0',
+    version='0.3.0',
     packages=find_packages(include=['landing_zone', 'landing_zone.*',
                                     'msg_adapters', 'msg_adapters.*']),
     package_data={'landing_zone': ['py.typed']},
@@ -26,7 +26,6 @@ setup(
         'torch>=2.2',
         'safetensors>=0.4',
         'rosbags>=0.10',
-        'mcap>=1.1',
         'trimesh>=4.0',
         'embreex>=2.17; platform_machine in "x86_64 AMD64 aarch64 arm64"',
         'scikit-learn>=1.3',
@@ -40,7 +39,8 @@ setup(
     extras_require={
         # For machines without a system ROS 2 Jazzy (the wheels from PyPI).
         'ros': ['ros-jazzy-rclpy[fastrtps]', 'ros-jazzy-common-interfaces'],
-        'dev': ['pytest>=7', 'hypothesis>=6', 'pytest-timeout>=2', 'flake8>=6', 'mypy>=1.8'],
+        'dev': ['pytest>=7', 'hypothesis>=6', 'pytest-timeout>=2', 'flake8>=6', 'mypy>=1.8',
+                'mcap>=1.1'],  # mcap: the tests write an unindexed file with it
         'bench': ['octomap-python>=1.9'],
     },
     zip_safe=True,
@@ -51,7 +51,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'assessor = landing_zone.node:main',
+            'assessor = landing_zone.frontends.node:main',
             'landing-zone = landing_zone.cli:main',
         ],
     },

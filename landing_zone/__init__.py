@@ -1,7 +1,8 @@
 """landing_zone: where can a helicopter land? Per-tile P(safe) from LiDAR with a 3D CNN.
 
 The core takes numpy arrays and poses and never imports ROS; the ROS node
-(:mod:`landing_zone.node`) and bag replay (:mod:`landing_zone.replay`) are thin front ends.
+(:mod:`landing_zone.frontends.node`) and bag replay (:mod:`landing_zone.frontends.replay`) are
+thin front ends.
 
     from landing_zone import Assessor
     a = Assessor()
@@ -12,13 +13,13 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-__version__ = '0.2.0'
+__version__ = '0.3.0'
 __all__ = ['Assessor', 'AssessorConfig', 'DensityMap', '__version__']
 
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessor
     from landing_zone.config import AssessorConfig
-    from landing_zone.density_map import DensityMap
+    from landing_zone.mapping.density_map import DensityMap
 
 
 def __getattr__(name: str) -> Any:
@@ -30,6 +31,6 @@ def __getattr__(name: str) -> Any:
         from landing_zone.config import AssessorConfig
         return AssessorConfig
     if name == 'DensityMap':
-        from landing_zone.density_map import DensityMap
+        from landing_zone.mapping.density_map import DensityMap
         return DensityMap
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

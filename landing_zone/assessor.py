@@ -20,7 +20,7 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
    tile area))`` (saturating once the tile holds a few hundred returns per square metre).
-5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.sites`).
+5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.judging.sites`).
 
 Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
 this). The map is guarded by a lock held only while rays are integrated or counts are read; the
@@ -40,13 +40,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from landing_zone.config import AssessorConfig
 from landing_zone.errors import InvalidCloudError, ModelError
-from landing_zone.sites import LandingSite, find_sites
+from landing_zone.judging.sites import LandingSite, find_sites
 
 if TYPE_CHECKING:
-    from landing_zone.density_map import IntegrationStats
+    from landing_zone.mapping.density_map import IntegrationStats
 
 __all__ = ['Assessor', 'Assessment', 'default_model_path', 'tile_confidence',
            'MODEL_FILENAME']
@@ -158,7 +159,8 @@ class Assessment:
     @property
     def known(self) -> np.ndarray:
         """(T,) bool, tiles that were judged (p_safe is a number)."""
-        return np.isfinite(self.p_safe)
+        out: np.ndarray = np.isfinite(self.p_safe)
+        return out
 
     def grid(self, values: np.ndarray) -> np.ndarray:
         """A per-tile array as the (X, Y) grid (cell (i, j) is tile ``origin + (i, j)``)."""
@@ -239,7 +241,7 @@ class Assessor:
 
     Attributes:
         config: the resolved configuration (``center`` set in fixed mode).
-        map: the :class:`~landing_zone.density_map.DensityMap`.
+        map: the :class:`~landing_zone.mapping.density_map.DensityMap`.
         model: the network; ``model_path`` the file it came from (None if passed in).
         model_metadata: the checkpoint's metadata.
         stats: the integration counters summed over every cloud.
@@ -254,16 +256,16 @@ class Assessor:
             config: the pipeline's configuration; default :class:`AssessorConfig()`.
             center: (x, y) of a fixed region of interest; overrides ``config.center``. None
                 (and no ``config.center``): the map follows the sensor.
-            model: a loaded :class:`~landing_zone.model.SafetyNet`, or a path to a checkpoint;
-                default ``config.model.path``, or the shipped model when that is empty.
+            model: a loaded :class:`~landing_zone.judging.net.SafetyNet`, or a path to a
+                checkpoint; default ``config.model.path``, or the shipped model when that is empty.
 
         Raises:
             ConfigError: an invalid configuration.
             ModelError: the model is missing, corrupt, or expects other inputs than the tiler
                 makes.
         """
-        from landing_zone.density_map import DensityMap, IntegrationStats
-        from landing_zone.tiles import tile_voxels
+        from landing_zone.mapping.density_map import DensityMap, IntegrationStats
+        from landing_zone.judging.tiles import tile_voxels
 
         # a private copy: the caller may go on editing theirs
         cfg = copy.deepcopy(config) if config is not None else AssessorConfig()
@@ -279,6 +281,9 @@ class Assessor:
         # how many tiles the padding of a tile's input reaches into on each side
         self._reach = int(math.ceil(cfg.tiles.padding / self.tile_vox))
         self.model, self.model_metadata, self.model_path = self._load_model(model)
+        from landing_zone.judging.inference import Predictor
+        # owns the inference copy and torch's thread count until close()
+        self._predictor = Predictor(self.model)
         side = self.tile_vox + 2 * cfg.tiles.padding
         if int(self.model.config.input_size) != side:
             raise ModelError(
@@ -302,7 +307,8 @@ class Assessor:
     # -- set-up -----------------------------------------------------------------------------
 
     def _load_model(self, model: Any) -> tuple[Any, dict[str, Any], Path | None]:
-        from landing_zone.model import SafetyNet, load_model
+        from landing_zone.judging.checkpoint import load_model
+        from landing_zone.judging.net import SafetyNet
 
         if isinstance(model, SafetyNet):
             return model.eval(), {}, None
@@ -367,14 +373,15 @@ class Assessor:
                 self._place(float(origin[0]), float(origin[1]),
                             ground if z_moved and ground is not None else float(c[2]))
         elif z_moved and not self._placed_z and ground is not None:
-            self._place(*self.config.center, ground)  # type: ignore[misc]
+            assert self.config.center is not None  # fixed mode
+            self._place(self.config.center[0], self.config.center[1], ground)
         self._placed_z = self._placed_z or ground is not None
         with self._state_lock:
             self._state.move(self._tile_origin())
 
     # -- the pipeline -----------------------------------------------------------------------
 
-    def integrate(self, points: np.ndarray, origin: Sequence[float],
+    def integrate(self, points: np.ndarray, origin: ArrayLike,
                   stamp: float | None = None) -> IntegrationStats:
         """Add one registered cloud to the map (moving the map first in follow mode).
 
@@ -419,11 +426,12 @@ class Assessor:
         if self._reach and grid.any():
             from scipy.ndimage import binary_dilation
             grid = binary_dilation(grid, np.ones((2 * self._reach + 1,) * 2, bool))
-        return np.argwhere(grid).astype(np.int64) + origin
+        out: np.ndarray = np.argwhere(grid).astype(np.int64) + origin
+        return out
 
     def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copy of the counts the tiles' inputs read: their bounding box, padding included,
-        clipped to the window (as :func:`landing_zone.tiles.extract_tiles` reads them, but
+        clipped to the window (as :func:`landing_zone.judging.tiles.extract_tiles` reads them, but
         only the copy is made under the map's lock)."""
         pad = self.config.tiles.padding
         lo = np.asarray(self.map.lo, np.int64)
@@ -441,8 +449,7 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
-        from landing_zone.model import predict
-        from landing_zone.tiles import tiles_from_counts
+        from landing_zone.judging.tiles import tiles_from_counts
 
         with self._assess_lock:
             t0 = time.perf_counter()
@@ -456,8 +463,8 @@ class Assessor:
             p = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
-                p[batch.valid] = predict(self.model, batch.inputs[batch.valid],
-                                         batch_size=self.config.model.batch_size)
+                p[batch.valid] = self._predictor(batch.inputs[batch.valid],
+                                                 batch_size=self.config.model.batch_size)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
@@ -496,6 +503,18 @@ class Assessor:
         """Judge every tile again at the next pass (after a change of the tiles' settings)."""
         with self._map_lock:
             self.map.mark_tile_size(self.tile_vox)
+
+    def close(self) -> None:
+        """Release what the assessor holds beyond memory: the map's worker threads and the
+        predictor's hold on torch's thread count. The assessor is not used after this."""
+        self.map.close()
+        self._predictor.close()
+
+    def __enter__(self) -> Assessor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @property
     def last(self) -> Assessment | None:

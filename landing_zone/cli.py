@@ -93,8 +93,9 @@ def replay(
     labels: Annotated[Optional[Path], typer.Option(
         help='SITE.labels.json: mark the true obstacles in the PNG.')] = None,
 ) -> None:
-    from landing_zone.replay import replay as run_replay
-    from landing_zone.stream import configs_from_flat, read_params_file
+    from landing_zone.frontends.replay import replay as run_replay
+    from landing_zone.config import configs_from_flat
+    from landing_zone.io.params import read_params_file
 
     config = stream_config = None
     if params is not None:
@@ -158,7 +159,7 @@ def insert_obstacles(
     frame_id: Annotated[str, typer.Option(help='The fixed frame of clouds and poses.')] = 'map',
     overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
 ) -> None:
-    from landing_zone.insert import insert_obstacles as run_insert
+    from landing_zone.sim.insert import insert_obstacles as run_insert
 
     r = run_insert(bag, out, count=count, seed=seed,
                    kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()), group=group,
@@ -192,8 +193,8 @@ def play(
     wait: Annotated[float, typer.Option(
         help='Wait up to this many seconds for a subscriber on every topic first.')] = 0.0,
 ) -> None:
-    from landing_zone.play import parse_remaps
-    from landing_zone.play import play as run_play
+    from landing_zone.frontends.play import parse_remaps
+    from landing_zone.frontends.play import play as run_play
 
     if not rate > 0:
         raise typer.BadParameter(f'must be positive, got {rate}', param_hint='--rate')
@@ -261,8 +262,9 @@ def train(
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec).')] = None,
 ) -> None:
-    from landing_zone.model import DEFAULT_SPEC, read_metadata
-    from landing_zone.train import TrainConfig, train as run_train
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.judging.net import DEFAULT_SPEC
+    from landing_zone.learn.train import TrainConfig, train as run_train
 
     if arch is None:
         arch = read_metadata(init)['model']['spec'] if init is not None else DEFAULT_SPEC
@@ -299,7 +301,7 @@ def tune(
     device: Annotated[Device, typer.Option(help='Where to train.')] = Device.cpu,
     seed: Annotated[int, typer.Option(help='Seed of the search and the trainings.')] = 0,
 ) -> None:
-    from landing_zone.tune import TuneConfig, format_rows, tune as run_tune
+    from landing_zone.learn.tune import TuneConfig, format_rows, tune as run_tune
 
     common = dict(trials=trials, workers=workers, device=device.value, seed=seed)
     cfg = (TuneConfig.paper(**common) if paper_budget
@@ -337,7 +339,7 @@ def evaluate(
         help='Evaluate an even subset of this many scenes (0: all).')] = 0,
     seed: Annotated[int, typer.Option(help='Seed of the baselines.')] = 0,
 ) -> None:
-    from landing_zone.evaluate import evaluate as run_evaluate
+    from landing_zone.learn.evaluate import evaluate as run_evaluate
 
     res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
                        split=split.value, workers=workers, fit_scenes=fit_scenes,

@@ -1,9 +1,15 @@
-"""Configuration of the landing_zone pipeline: one dataclass per stage, SI units.
+"""Configuration of landing_zone: one dataclass per stage, SI units, and every parameter fact.
 
-The ROS node declares the same fields as dotted parameters (``map.voxel_size``,
+Each field that is a parameter of the ``assessor`` node carries its facts as field metadata
+(:class:`Param`: description, unit, range, read-only), here and nowhere else. From them come
+the checks of :meth:`validate`, the node's ``ParameterDescriptor``\\ s (:data:`PARAMETERS`) and
+the text of ``config/assessor.yaml`` (:func:`params_yaml`; a test holds the file to it).
+
+The node declares the pipeline's fields as dotted parameters (``map.voxel_size``,
 ``tiles.tile_size``, ...) and copies them onto :class:`AssessorConfig` mechanically
 (:func:`AssessorConfig.from_flat` / :meth:`AssessorConfig.to_flat`), so the names in
-``config/assessor.yaml``, the node and the Python API are the same.
+``config/assessor.yaml``, the node and the Python API are the same. :class:`StreamConfig` (the
+stream node and replay share) and :class:`NodeConfig` (the node's own) are flat.
 """
 from __future__ import annotations
 
@@ -15,35 +21,109 @@ from typing import Any
 from landing_zone.errors import ConfigError
 
 __all__ = [
+    'Param',
     'MapConfig',
     'TileConfig',
     'ModelConfig',
     'SiteConfig',
     'AssessorConfig',
+    'StreamConfig',
+    'NodeConfig',
+    'PARAMETERS',
+    'default_parameters',
+    'configs_from_flat',
+    'params_yaml',
 ]
+
+SECTIONS = ('map', 'tiles', 'model', 'landing_sites')
+
+
+@dataclass(frozen=True)
+class Param:
+    """The facts of one parameter.
+
+    Attributes:
+        description: what it does, one phrase (the descriptor's text, the YAML comment).
+        unit: SI unit, '' for none.
+        range: (lo, hi) of allowed values, both included unless ``open_lo`` / ``open_hi``;
+            None: no range (strings, arrays).
+        open_lo: ``lo`` itself is not allowed.
+        open_hi: ``hi`` itself is not allowed.
+        read_only: fixed once the node runs (it sizes the map, the tiles or the network).
+        name: the parameter's name when it is not the field's own (``region_center``).
+    """
+
+    description: str
+    unit: str = ''
+    range: tuple[float, float] | None = None
+    open_lo: bool = False
+    open_hi: bool = False
+    read_only: bool = False
+    name: str = ''
+
+    @property
+    def text(self) -> str:
+        """Description with unit and read-only mark, as the node and the YAML show it."""
+        unit = f' [{self.unit}]' if self.unit else ''
+        return f'{self.description}{unit}' + (' (read-only)' if self.read_only else '')
+
+    def check(self, name: str, value: Any) -> None:
+        """Raise :class:`ConfigError` naming ``name`` if ``value`` is outside the range."""
+        if self.range is None:
+            return
+        lo, hi = self.range
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f'{name} must be a number, got {value!r}') from None
+        ok = math.isfinite(v) and (v > lo if self.open_lo else v >= lo) and (
+            v < hi if self.open_hi else v <= hi)
+        if not ok:
+            if lo == 0 and self.open_lo and math.isinf(hi):
+                raise ConfigError(f'{name} must be a positive number, got {value!r}')
+            left, right = '(' if self.open_lo else '[', ')' if self.open_hi else ']'
+            raise ConfigError(f'{name} must lie in {left}{lo:g}, {hi:g}{right}, got {value!r}')
+
+
+def param(default: Any, description: str, unit: str = '',
+          range: tuple[float, float] | None = None, *, open_lo: bool = False,
+          open_hi: bool = False, read_only: bool = False, name: str = '') -> Any:
+    """A dataclass field with its :class:`Param` facts as metadata."""
+    return field(default=default, metadata={'param': Param(
+        description, unit, range, open_lo, open_hi, read_only, name)})
+
+
+def _check_fields(obj: Any, prefix: str) -> None:
+    for f in dataclasses.fields(obj):
+        p = f.metadata.get('param')
+        if p is not None:
+            p.check(prefix + f.name, getattr(obj, f.name))
 
 
 @dataclass
 class MapConfig:
     """The scrolling volumetric density map."""
 
-    voxel_size: float = 0.05  # edge of a cubic voxel [m]; the paper's 5 cm
-    size_xy: float = 20.0  # extent of the map in x and in y [m]
-    size_z: float = 4.0  # vertical extent of the map [m]
+    # the paper's 5 cm
+    voxel_size: float = param(0.05, 'Edge of a cubic voxel; must match the model', 'm',
+                              (0.0, 1.0), open_lo=True, read_only=True)
+    size_xy: float = param(20.0, 'Extent of the scrolling map in x and y', 'm', (0.0, 400.0),
+                           open_lo=True, read_only=True)
+    size_z: float = param(4.0, 'Vertical extent of the map', 'm', (0.0, 100.0), open_lo=True,
+                          read_only=True)
     # Where the map sits vertically relative to its centre: the window spans
     # [center_z - z_below, center_z - z_below + size_z]. The vehicle is usually far above the
     # ground, so in follow mode the map is centred on the ground below, not on the sensor.
-    z_below: float = 2.0  # [m]
-    # Follow mode re-centres when the sensor's ground point is this far from the centre [m].
-    recenter_distance: float = 2.0
+    z_below: float = param(2.0, 'How far the map reaches below the ground under the sensor', 'm',
+                           (0.0, 100.0), read_only=True)
+    recenter_distance: float = param(
+        2.0, 'Follow mode scrolls when the sensor is this far from the centre', 'm',
+        (0.0, 200.0))
 
     def validate(self) -> None:
-        _positive('map.voxel_size', self.voxel_size)
-        _positive('map.size_xy', self.size_xy)
-        _positive('map.size_z', self.size_z)
-        if not 0.0 <= self.z_below <= self.size_z:
+        _check_fields(self, 'map.')
+        if not self.z_below <= self.size_z:
             raise ConfigError(f'map.z_below must lie in [0, map.size_z], got {self.z_below}')
-        _nonnegative('map.recenter_distance', self.recenter_distance)
         if self.size_xy / self.voxel_size > 4096 or self.size_z / self.voxel_size > 1024:
             raise ConfigError('map too large for its voxel size (at most 4096 x 4096 x 1024 '
                               f'voxels), got {self.size_xy} m / {self.voxel_size} m')
@@ -59,75 +139,67 @@ class MapConfig:
 class TileConfig:
     """How the map's XY plane is cut into tiles and each tile into a network input."""
 
-    tile_size: float = 1.0  # edge of a square tile [m]; the paper's 1 m
-    # Voxels of context added on every side of the tile's cube: 20 + 2*6 = 32 at 5 cm.
-    padding: int = 6
-    # Robust ground: this quantile of the heights of occupied voxels in the tile column.
-    ground_quantile: float = 0.05
-    # A voxel counts as occupied for the ground estimate when its density is at least this.
-    occupied_density: float = 0.6
-    # A tile is judged only if at least this fraction of its 1 m^3 cube was observed
-    # (crossed or hit by at least one ray) ...
-    min_observed_fraction: float = 0.25
-    # ... and at least this many returns fell into its column.
-    min_returns: int = 20
+    # the paper's 1 m
+    tile_size: float = param(1.0, 'Edge of a square tile, a whole number of voxels', 'm',
+                             (0.0, 10.0), open_lo=True, read_only=True)
+    # 20 + 2*6 = 32 voxels at 5 cm
+    padding: int = param(6, "Voxels of context around a tile's cube; must match the model",
+                         '', (0, 64), read_only=True)
+    # One value per voxel column keeps grass from outvoting the columns that show the ground.
+    ground_quantile: float = param(
+        0.05, "Quantile of the column minima taken as the tile's ground", '', (0.0, 1.0),
+        open_hi=True)
+    occupied_density: float = param(
+        0.6, 'Density from which a voxel counts as occupied (ground estimate)', '', (0.5, 1.0),
+        open_hi=True)
+    # (crossed or hit by at least one ray)
+    min_observed_fraction: float = param(
+        0.25, 'Tiles with less of their cube observed are unknown', '', (0.0, 1.0))
+    min_returns: int = param(20, 'Tiles with fewer returns in their column are unknown', '',
+                             (0, 1_000_000))
 
     def validate(self) -> None:
-        _positive('tiles.tile_size', self.tile_size)
-        if self.padding < 0:
-            raise ConfigError(f'tiles.padding must be >= 0, got {self.padding}')
-        if not 0.0 <= self.ground_quantile < 1.0:
-            raise ConfigError(f'tiles.ground_quantile must lie in [0, 1), got '
-                              f'{self.ground_quantile}')
-        if not 0.5 <= self.occupied_density < 1.0:
-            raise ConfigError(f'tiles.occupied_density must lie in [0.5, 1), got '
-                              f'{self.occupied_density}')
-        if not 0.0 <= self.min_observed_fraction <= 1.0:
-            raise ConfigError(f'tiles.min_observed_fraction must lie in [0, 1], got '
-                              f'{self.min_observed_fraction}')
-        if self.min_returns < 0:
-            raise ConfigError(f'tiles.min_returns must be >= 0, got {self.min_returns}')
+        _check_fields(self, 'tiles.')
 
 
 @dataclass
 class ModelConfig:
     """The safety CNN."""
 
-    path: str = ''  # weights file (.safetensors); empty = the model shipped in models/
-    device: str = 'cpu'  # 'cpu', 'cuda' or 'cuda:N'
-    batch_size: int = 256  # tiles per forward pass
+    path: str = param('', 'Model file (.safetensors); empty: the shipped model', read_only=True)
+    device: str = param('cpu', 'Inference device: cpu, cuda or cuda:N', read_only=True)
+    batch_size: int = param(256, 'Tiles per forward pass', '', (1, 65536))
 
     def validate(self) -> None:
+        _check_fields(self, 'model.')
         if not (self.device == 'cpu' or self.device.startswith('cuda')):
             raise ConfigError(f"model.device must be 'cpu' or 'cuda[:N]', got {self.device!r}")
-        if self.batch_size < 1:
-            raise ConfigError(f'model.batch_size must be >= 1, got {self.batch_size}')
 
 
 @dataclass
 class SiteConfig:
     """Landing-site candidates for the vehicle's footprint."""
 
-    footprint_radius: float = 1.5  # radius of the vehicle's circular footprint [m]
-    top_k: int = 5  # candidates reported, best first
-    min_p_safe: float = 0.5  # candidates below this P(all tiles under the footprint safe) drop
+    footprint_radius: float = param(1.5, "Radius of the vehicle's circular footprint", 'm',
+                                    (0.0, 50.0), open_lo=True)
+    top_k: int = param(5, 'Landing-site candidates published, best first', '', (0, 100))
+    min_p_safe: float = param(
+        0.5, 'Candidates below this P(all tiles under the footprint safe) are left out', '',
+        (0.0, 1.0))
 
     def validate(self) -> None:
-        _positive('landing_sites.footprint_radius', self.footprint_radius)
-        if self.top_k < 0:
-            raise ConfigError(f'landing_sites.top_k must be >= 0, got {self.top_k}')
-        if not 0.0 <= self.min_p_safe <= 1.0:
-            raise ConfigError(f'landing_sites.min_p_safe must lie in [0, 1], got '
-                              f'{self.min_p_safe}')
+        _check_fields(self, 'landing_sites.')
 
 
 @dataclass
 class AssessorConfig:
     """The whole pipeline; the defaults are those of the node (docs/INTERFACES.md §1)."""
 
-    frame_id: str = 'map'  # fixed frame of clouds, poses and outputs
+    frame_id: str = param('map', 'Fixed frame of the clouds, poses and outputs', read_only=True)
     # None: the map follows the sensor (scrolling). (x, y): a fixed region of interest.
-    center: tuple[float, float] | None = None
+    center: tuple[float, float] | None = param(
+        None, 'X Y of a fixed region of interest; unset: the map follows the sensor', 'm',
+        read_only=True, name='region_center')
     map: MapConfig = field(default_factory=MapConfig)
     tiles: TileConfig = field(default_factory=TileConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -155,7 +227,7 @@ class AssessorConfig:
     def to_flat(self) -> dict[str, Any]:
         """Dotted names -> values, as the node's parameters and the YAML file spell them."""
         flat: dict[str, Any] = {'frame_id': self.frame_id}
-        for section in ('map', 'tiles', 'model', 'landing_sites'):
+        for section in SECTIONS:
             for f in dataclasses.fields(getattr(self, section)):
                 flat[f'{section}.{f.name}'] = getattr(getattr(self, section), f.name)
         return flat
@@ -172,8 +244,7 @@ class AssessorConfig:
                 cfg.center = None if value is None else (float(value[0]), float(value[1]))
                 continue
             section, _, name = key.partition('.')
-            sub = getattr(cfg, section, None) if section in (
-                'map', 'tiles', 'model', 'landing_sites') else None
+            sub = getattr(cfg, section, None) if section in SECTIONS else None
             if sub is None or name not in {f.name for f in dataclasses.fields(sub)}:
                 raise ConfigError(f'unknown configuration key {key!r}')
             current = getattr(sub, name)
@@ -182,11 +253,168 @@ class AssessorConfig:
         return cfg
 
 
-def _positive(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value > 0):
-        raise ConfigError(f'{name} must be a positive number, got {value!r}')
+@dataclass
+class StreamConfig:
+    """The stream's timing (:mod:`landing_zone.frontends.stream`), shared by node and replay."""
+
+    assessment_period: float = param(1.0, 'Stamp time between assessments', 's', (0.0, 60.0),
+                                     open_lo=True)
+    pose_tolerance: float = param(0.05, "How far a cloud may lie outside the poses' span", 's',
+                                  (0.0, 10.0))
+    pose_wait: float = param(0.5, 'How long (stamp time) a cloud may wait for its pose', 's',
+                             (0.0, 10.0))
+    max_pending: int = param(20, 'Clouds that may wait for their pose at once', '', (1, 1000))
+    pose_history: float = param(30.0, 'Span of poses kept for interpolation', 's',
+                                (0.0, 3600.0), open_lo=True, read_only=True)
+
+    def validate(self) -> None:
+        _check_fields(self, '')
 
 
-def _nonnegative(name: str, value: float) -> None:
-    if not (math.isfinite(value) and value >= 0):
-        raise ConfigError(f'{name} must be a non-negative number, got {value!r}')
+@dataclass
+class NodeConfig:
+    """The ``assessor`` node's own settings (the front end's, not the pipeline's)."""
+
+    qos_depth: int = param(5, 'History depth of the points and pose subscriptions', '',
+                           (1, 1000), read_only=True)
+    diagnostics_period: float = param(1.0, 'Time between /diagnostics messages', 's',
+                                      (0.1, 60.0), read_only=True)
+    idle_flush: float = param(
+        1.0, 'After this long without input, waiting clouds are settled and the last ones '
+        'assessed', 's', (0.05, 60.0))
+    warn_period: float = param(5.0, 'Least time between two warnings of one kind', 's',
+                               (0.0, 3600.0))
+
+
+def _parameter_table() -> dict[str, tuple[Any, Param]]:
+    """Every node parameter by name: (default, facts), in the order of the YAML file."""
+    out: dict[str, tuple[Any, Param]] = {}
+
+    def add(obj: Any, prefix: str) -> None:
+        for f in dataclasses.fields(obj):
+            p = f.metadata.get('param')
+            if p is not None:
+                out[p.name or prefix + f.name] = (getattr(obj, f.name), p)
+
+    top = AssessorConfig()
+    add(top, '')
+    for section in SECTIONS:
+        add(getattr(top, section), section + '.')
+    add(StreamConfig(), '')
+    add(NodeConfig(), '')
+    return out
+
+
+# name -> (default, Param) of every parameter of the node; region_center's default None = unset.
+PARAMETERS: dict[str, tuple[Any, Param]] = _parameter_table()
+
+
+def default_parameters() -> dict[str, Any]:
+    """Every parameter with a default, by name (the pipeline's, the stream's, the node's)."""
+    return {name: default for name, (default, _) in PARAMETERS.items() if default is not None}
+
+
+def configs_from_flat(flat: dict[str, Any]) -> tuple[AssessorConfig, StreamConfig,
+                                                     dict[str, Any]]:
+    """Split dotted parameters into the pipeline's config, the stream's and the rest.
+
+    ``region_center`` (empty or two numbers) becomes ``AssessorConfig.center``; names of
+    :class:`StreamConfig` fields go to the stream config; names :meth:`AssessorConfig.to_flat`
+    knows go to the pipeline; anything else (front-end settings such as ``qos_depth``) is
+    returned as it is.
+
+    Raises:
+        ConfigError: a value of the wrong type or out of range.
+    """
+    known = set(AssessorConfig().to_flat())
+    stream_fields = {f.name: f for f in dataclasses.fields(StreamConfig)}
+    core: dict[str, Any] = {}
+    stream = StreamConfig()
+    rest: dict[str, Any] = {}
+    for name, value in flat.items():
+        if name in known:
+            core[name] = value
+        elif name in stream_fields:
+            current = getattr(stream, name)
+            try:
+                setattr(stream, name, type(current)(value))
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f'{name} must be a {type(current).__name__}, got '
+                                  f'{value!r}') from err
+        elif name == 'region_center':
+            center = list(value or [])
+            if len(center) not in (0, 2):
+                raise ConfigError(f'region_center must be empty or two numbers, got {value!r}')
+            core['center'] = [float(c) for c in center] if center else None
+        else:
+            rest[name] = value
+    try:
+        cfg = AssessorConfig.from_flat(core)
+    except (TypeError, ValueError) as err:
+        if isinstance(err, ConfigError):
+            raise
+        raise ConfigError(f'bad parameter value: {err}') from err
+    stream.validate()
+    return cfg, stream, rest
+
+
+_YAML_HEAD = '''\
+# Parameters of the `assessor` node (landing_zone), with their defaults.
+#
+#   ros2 run landing_zone assessor --ros-args --params-file config/assessor.yaml
+#   landing-zone replay SITE.mcap --out OUT.mcap --report REPORT.json --params config/assessor.yaml
+#
+# Nested sections are the dotted parameter names (map.voxel_size, ...), the same names as the
+# fields of landing_zone.config.AssessorConfig. Write floats with a decimal point (20.0, not 20):
+# ROS 2 parameters are typed. Parameters marked (read-only) size the map, the tiles or the
+# network and cannot change while the node runs.
+#
+# Generated from the field metadata in landing_zone/config.py (landing_zone.config.params_yaml);
+# test/test_config.py fails when the two differ.
+assessor:
+  ros__parameters:
+'''
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, str):
+        return value if value else "''"
+    return repr(value)
+
+
+def params_yaml() -> str:
+    """The text of ``config/assessor.yaml``: every parameter, its default and its facts."""
+    lines = [_YAML_HEAD.rstrip('\n')]
+
+    def emit(indent: str, key: str, value: Any, p: Param, commented: bool = False) -> None:
+        entry = f'{indent}{"# " if commented else ""}{key}: {value}'
+        inline = f'{entry:<{len(indent) + 29}}  # {p.text}'
+        if not commented and len(inline) <= 99:
+            lines.append(inline)
+        else:
+            lines.append(f'{indent}# {p.text}')
+            lines.append(entry)
+
+    top = AssessorConfig()
+    for f in dataclasses.fields(top):
+        p = f.metadata.get('param')
+        if p is None:
+            continue
+        if p.name == 'region_center':
+            emit('    ', p.name, '[10.0, -4.0]', p, commented=True)
+        else:
+            emit('    ', f.name, _yaml_value(getattr(top, f.name)), p)
+    for section in SECTIONS:
+        lines.append('')
+        lines.append(f'    {section}:')
+        sub = getattr(top, section)
+        for f in dataclasses.fields(sub):
+            emit('      ', f.name, _yaml_value(getattr(sub, f.name)), f.metadata['param'])
+    for title, obj in (('The stream (landing_zone.config.StreamConfig), shared with replay.',
+                        StreamConfig()),
+                       ('The node only (landing_zone.config.NodeConfig).', NodeConfig())):
+        lines.append('')
+        lines.append(f'    # {title}')
+        for f in dataclasses.fields(obj):
+            emit('    ', f.name, _yaml_value(getattr(obj, f.name)), f.metadata['param'])
+    return '\n'.join(lines) + '\n'

@@ -3,15 +3,14 @@
 1. :func:`landing_zone.sim.flight.simulate_flight` writes the default site's flight (20 x 20 m
    of grass patches and obstacles, a lawnmower pass at 8 m) as ``site.mcap`` and its ground
    truth as ``site.labels.json``.
-2. :func:`landing_zone.replay.replay` runs the node's pipeline on it with the map fixed on the
-   site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
+2. :func:`landing_zone.frontends.replay.replay` runs the node's pipeline on it with the map fixed
+   on the site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
 3. The tile map is printed in colour (green safe, red unsafe, grey unknown; ``XX`` marks the
    tiles an obstacle really overlaps), with the AUC of the per-tile P(safe) against the labels
    over the tiles that were judged, and the fraction judged.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -26,9 +25,9 @@ if TYPE_CHECKING:
     from rich.text import Text
 
     from landing_zone.assessor import Assessment
-    from landing_zone.replay import ReplayResult
+    from landing_zone.frontends.replay import ReplayResult
 
-__all__ = ['DemoResult', 'label_scores', 'tile_map', 'run_demo']
+__all__ = ['DemoResult', 'tile_map', 'run_demo']
 
 
 @dataclass
@@ -43,42 +42,6 @@ class DemoResult:
     seconds: dict[str, float]
 
 
-def _label_grid(assessment: Assessment, labels: dict[str, Any]) -> np.ndarray:
-    """Per tile of the assessment: 1 safe, 0 unsafe, -1 not labelled."""
-    out = np.full(len(assessment), -1, np.int8)
-    for tile in labels.get('tiles', []):
-        i = assessment.lookup(float(tile['x']), float(tile['y']))
-        if i is not None:
-            out[i] = 1 if tile['safe'] else 0
-    return out
-
-
-def label_scores(assessment: Assessment, labels: dict[str, Any]
-                 ) -> tuple[float | None, float, int]:
-    """AUC of P(safe) against the ground truth, over the labelled tiles that were judged.
-
-    Args:
-        assessment: the final state of the tiles.
-        labels: a SITE.labels.json document (docs/INTERFACES.md §3).
-
-    Returns:
-        ``(auc, judged_fraction, n_judged)``: AUC with 'safe' as the positive class (None when
-        the judged tiles hold one class only), the share of the labelled tiles that were
-        judged, and how many.
-    """
-    from sklearn.metrics import roc_auc_score
-
-    truth = _label_grid(assessment, labels)
-    n_labelled = len(labels.get('tiles', []))
-    judged = (truth >= 0) & np.isfinite(assessment.p_safe)
-    n = int(judged.sum())
-    fraction = n / n_labelled if n_labelled else 0.0
-    y = truth[judged]
-    if n == 0 or y.min() == y.max():
-        return None, fraction, n
-    return float(roc_auc_score(y, assessment.p_safe[judged])), fraction, n
-
-
 def _rgb(p: float) -> str:
     """red (0) -> yellow (0.5) -> green (1), as rich's hex colour."""
     r = min(1.0, 2.0 * (1.0 - p))
@@ -90,7 +53,10 @@ def tile_map(assessment: Assessment, labels: dict[str, Any] | None = None) -> Te
     """The tiles as coloured two-character cells, north (+y) up, with axis ticks."""
     from rich.text import Text
 
-    truth = _label_grid(assessment, labels) if labels else np.full(len(assessment), -1)
+    from landing_zone.io.labels import tile_truth
+
+    truth = (tile_truth(assessment.centers, assessment.tile_size, labels) if labels
+             else np.full(len(assessment), -1))
     nx, ny = assessment.shape
     ts = assessment.tile_size
     text = Text()
@@ -145,7 +111,8 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     from rich.console import Console
 
     from landing_zone.assessor import default_model_path
-    from landing_zone.replay import replay
+    from landing_zone.frontends.replay import replay
+    from landing_zone.io.labels import read_labels, score_tiles
     from landing_zone.sim.flight import FlightConfig, simulate_flight
 
     console = console or Console(highlight=False)
@@ -158,7 +125,7 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     with console.status('simulating the flight ...'):
         flight = simulate_flight(FlightConfig(seed=seed), out / 'site.mcap', overwrite=True)
     seconds['simulate'] = time.perf_counter() - t0
-    labels = json.loads(flight.labels.read_text(encoding='utf-8'))
+    labels = read_labels(flight.labels)
     lo, hi = np.asarray(labels['site']['lo']), np.asarray(labels['site']['hi'])
     center = tuple(float(c) for c in (lo + hi) / 2)
     console.print(f'simulated {flight.clouds} clouds, {flight.points:,} returns over '
@@ -171,7 +138,8 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                  model=model_path, center=center, labels=flight.labels)
     seconds['replay'] = time.perf_counter() - t0
     a = res.assessment
-    auc, fraction, n = label_scores(a, labels)
+    scores = score_tiles(a.centers, a.p_safe, a.tile_size, labels)
+    auc, fraction, n = scores.auc, scores.judged_fraction, scores.judged
 
     console.print(f'\nP(safe) per {a.tile_size:g} m tile ({a.frame_id} frame), '
                   f'model {model_path.name}:')

@@ -117,7 +117,8 @@ def slerp(q0: np.ndarray, q1: np.ndarray, alpha: float) -> np.ndarray:
     else:
         s = math.sin(theta)
         q = (math.sin((1.0 - alpha) * theta) / s) * q0 + (math.sin(alpha * theta) / s) * q1
-    return q / math.sqrt(float(q @ q))
+    out: np.ndarray = q / math.sqrt(float(q @ q))
+    return out
 
 
 class PoseBuffer:

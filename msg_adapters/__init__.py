@@ -2,8 +2,8 @@
 
 The adapters read messages through their attributes only, so the same functions accept messages
 from rclpy (``sensor_msgs.msg.PointCloud2``, ...) and from a rosbags typestore (what
-:func:`landing_zone.bagio.read_messages` yields). Building messages needs to know which of the two
-implementations to build: :class:`MessageTypes` names it, and every builder takes one.
+:func:`landing_zone.io.bags.read_messages` yields). Building messages needs to know which of the
+two implementations to build: :class:`MessageTypes` names it, and every builder takes one.
 
 Modules:
     pointcloud: PointCloud2 <-> numpy structured / (N, 3) arrays.
@@ -15,6 +15,7 @@ message modules when a class is first asked for.
 from __future__ import annotations
 
 import array
+import functools
 import importlib
 import operator
 from typing import TYPE_CHECKING, Any, Literal
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 __all__ = [
+    'jazzy_typestore',
     'MessageTypes',
     'as_message_types',
     'stamp_to_ns',
@@ -36,6 +38,13 @@ __all__ = [
 
 _NS_PER_S = 1_000_000_000
 _INT32_MIN, _INT32_MAX = -(2**31), 2**31 - 1
+
+
+@functools.lru_cache(maxsize=1)
+def jazzy_typestore() -> Typestore:
+    """The rosbags typestore of ROS 2 Jazzy (messages this project writes are built from it)."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
 
 
 class MessageTypes:
@@ -67,11 +76,8 @@ class MessageTypes:
 
     @classmethod
     def rosbags(cls, typestore: Typestore | None = None) -> MessageTypes:
-        """Message classes of a rosbags typestore (default: the Jazzy store of ``bagio``)."""
-        if typestore is None:
-            from landing_zone.bagio import typestore as jazzy_typestore
-            typestore = jazzy_typestore()
-        return cls('rosbags', typestore)
+        """Message classes of a rosbags typestore (default: :func:`jazzy_typestore`)."""
+        return cls('rosbags', typestore if typestore is not None else jazzy_typestore())
 
     def get(self, msgtype: str) -> type:
         """The class of a message type.

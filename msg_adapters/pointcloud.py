@@ -21,13 +21,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from landing_zone.errors import InvalidCloudError
-from msg_adapters import MessageTypes, as_message_types
+from msg_adapters import MessageTypes, as_message_types, stamp_to_ns
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 __all__ = [
     'DATATYPES',
+    'read_cloud_header',
+    'declared_points',
     'cloud_dtype',
     'cloud_view',
     'cloud_to_xyz',
@@ -192,6 +194,28 @@ def _view(msg: Any, names: tuple[str, ...] | None = None) -> tuple[np.ndarray, n
         raise InvalidCloudError(f'cloud point_step is 0 with {width * height} points')
     return np.ndarray(shape=(height, width), dtype=dtype, buffer=buf,
                       strides=(row_step, point_step)), buf
+
+
+def read_cloud_header(msg: Any) -> tuple[str, int]:
+    """``(frame_id, stamp_ns)`` of a ``sensor_msgs/PointCloud2``: the stamp whose interpolated
+    pose is the cloud's sensor origin.
+
+    Raises:
+        InvalidCloudError: The header is missing or its stamp is not an integer time.
+    """
+    try:
+        return msg.header.frame_id, stamp_to_ns(msg.header.stamp)
+    except (AttributeError, TypeError, ValueError) as err:
+        raise InvalidCloudError(f'bad header ({err})') from None
+
+
+def declared_points(msg: Any) -> int:
+    """width * height of a cloud message if both are non-negative integers, else 0."""
+    try:
+        n = int(msg.width) * int(msg.height)
+    except (AttributeError, TypeError, ValueError):
+        return 0
+    return n if n >= 0 else 0
 
 
 def cloud_dtype(msg: Any) -> np.dtype:

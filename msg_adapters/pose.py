@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
 
 __all__ = [
+    'read_pose_msg',
     'pose_to_arrays',
     'pose_stamped_to_arrays',
     'pose_to_rt',
@@ -73,6 +74,22 @@ def pose_stamped_to_arrays(msg: Any) -> tuple[int, np.ndarray, np.ndarray]:
     except (TypeError, ValueError) as err:
         raise InvalidPoseError(f'pose stamp is not an integer time: {err}') from None
     return (stamp_ns, *pose_to_arrays(pose))
+
+
+def read_pose_msg(msg: Any) -> tuple[str, int, np.ndarray, np.ndarray]:
+    """A ``geometry_msgs/PoseStamped`` as the stream takes it (the node and the bag tools alike).
+
+    Returns:
+        ``(frame_id, stamp_ns, position (3,), unit quaternion (4,) xyzw)``.
+
+    Raises:
+        InvalidPoseError: Not a PoseStamped, non-finite, or a zero quaternion.
+    """
+    try:
+        frame = msg.header.frame_id
+    except AttributeError as err:
+        raise InvalidPoseError(f'not a geometry_msgs/PoseStamped: {err}') from None
+    return (frame, *pose_stamped_to_arrays(msg))
 
 
 def pose_to_rt(msg: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -14,7 +14,7 @@ nvidia-smi -L || true
 python3 -c 'import torch, numba, numpy; print("torch", torch.__version__, "cuda",
     torch.cuda.is_available(), "numba", numba.__version__, "numpy", numpy.__version__)'
 t0=$(date +%s)
-python3 -m landing_zone.sim simulate --dataset synth2 --out /tmp/synth2 --scenes "$scenes" \
+python3 -m landing_zone simulate --dataset synth2 --out /tmp/synth2 --scenes "$scenes" \
     --workers 16 --seed 0 --quiet 2>&1 | tail -3
 echo "dataset: $scenes scenes in $(( $(date +%s) - t0 )) s"
 for arch in "$@"; do

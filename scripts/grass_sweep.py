@@ -24,13 +24,14 @@ def main() -> int:
     from sklearn.metrics import roc_auc_score
 
     from landing_zone.assessor import default_model_path
-    from landing_zone.baselines.plane import PlaneResiduals
-    from landing_zone.model import load_model, predict
+    from landing_zone.learn.baselines.plane import PlaneResiduals
+    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.inference import predict
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.obstacles import models
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig
-    from landing_zone.tiles import scene_to_input
+    from landing_zone.judging.tiles import scene_to_input
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--scenes', type=int, default=80, help='per density, half unsafe')

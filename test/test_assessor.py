@@ -18,7 +18,8 @@ def make_model(path, input_size: int = 32, seed: int = 0, **metadata):
     """A model file of the right architecture from a seeded, untrained net."""
     import torch
 
-    from landing_zone.model import SafetyNet, SafetyNetConfig, save_model
+    from landing_zone.judging.checkpoint import save_model
+    from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 
     torch.manual_seed(seed)
     net = SafetyNet(SafetyNetConfig(spec=SMALL_SPEC, input_size=input_size))
@@ -105,8 +106,8 @@ def test_fixed_mode_never_scrolls(model_file):
 
 
 def test_judged_tiles_are_the_networks_output_and_others_unknown(model_file):
-    from landing_zone.model import predict
-    from landing_zone.tiles import extract_tiles
+    from landing_zone.judging.inference import predict
+    from landing_zone.judging.tiles import extract_tiles
 
     a = Assessor(small_config(), model=model_file)
     rng = np.random.default_rng(3)

@@ -8,9 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landing_zone.bagio import BagMessage, BagWriter, bag_topics, read_messages, typestore
+from landing_zone.io.bags import BagMessage, BagWriter, bag_topics, read_messages
 from landing_zone.errors import BagError
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
+from msg_adapters import jazzy_typestore as typestore
 from msg_adapters.pointcloud import cloud_to_structured, cloud_to_xyz, make_cloud
 from msg_adapters.pointcloud import points_to_structured
 from msg_adapters.pose import make_pose_stamped, pose_stamped_to_arrays
@@ -141,12 +142,31 @@ def test_unindexed_mcap_from_the_mcap_package(tmp_path):
                                             data=store.generate_msgdef(msgtype)[0].encode())
             channels[topic] = writer.register_channel(topic=topic, message_encoding='cdr',
                                                       schema_id=schema)
-        for topic, stamp, msg in flight:
+        # as a recorder writes them: in log-time order (rosbags reads an unindexed file so)
+        for topic, stamp, msg in sorted(flight, key=lambda m: m[1]):
             writer.add_message(channel_id=channels[topic], log_time=stamp, publish_time=stamp,
                                data=bytes(store.serialize_cdr(msg, msg.__msgtype__)))
         writer.finish()
     assert bag_topics(path) == {'/lidar/points': CLOUD, '/lidar/pose': POSE}
     _assert_read_back(list(read_messages(path)), flight)
+    # out of log-time order, an unindexed file cannot be read in order: a one-line BagError
+    shuffled = tmp_path / 'shuffled.mcap'
+    with shuffled.open('wb') as f:
+        writer = Writer(f, use_chunking=False, use_summary_offsets=False)
+        writer.start(profile='ros2', library='test')
+        channels = {}
+        for topic, msgtype in (('/lidar/points', CLOUD), ('/lidar/pose', POSE)):
+            schema = writer.register_schema(name=msgtype, encoding='ros2msg',
+                                            data=store.generate_msgdef(msgtype)[0].encode())
+            channels[topic] = writer.register_channel(topic=topic, message_encoding='cdr',
+                                                      schema_id=schema)
+        for topic, stamp, msg in flight:  # the clouds, then the poses
+            writer.add_message(channel_id=channels[topic], log_time=stamp, publish_time=stamp,
+                               data=bytes(store.serialize_cdr(msg, msg.__msgtype__)))
+        writer.finish()
+    with pytest.raises(BagError, match='shuffled.mcap.*not in timestamp order') as err:
+        list(read_messages(shuffled))
+    assert '\n' not in str(err.value)
 
 
 def test_overwrite(tmp_path):

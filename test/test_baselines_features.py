@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landing_zone.baselines import FEATURE_NAMES, voxel_features
-from landing_zone.baselines.features import spectral_features
-from landing_zone.baselines.toy import heightfield_volume
+from landing_zone.learn.baselines import FEATURE_NAMES, voxel_features
+from landing_zone.learn.baselines.features import spectral_features
+from landing_zone.learn.baselines.toy import heightfield_volume
 from landing_zone.errors import ConfigError, DatasetError
 
 S = 32
@@ -134,6 +134,6 @@ def test_thresholds_match_the_tiles_definition():
     f = voxel_features(vol[None])
     assert {tuple(v) for v in f.ijk} == {(10, 10, 16), (14, 14, 16)}
     assert _at(f, 0, (14, 14, 16))['column_layers'] == 1
-    from landing_zone.baselines import VolumeGeometry
+    from landing_zone.learn.baselines import VolumeGeometry
     with pytest.raises(ConfigError, match='occupied_density'):
         voxel_features(vol[None], VolumeGeometry(occupied_density=0.5))

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from landing_zone.baselines import (BowForest, PlaneResiduals, RawForest, make_baselines)
-from landing_zone.baselines.toy import boxes_and_flats
+from landing_zone.learn.baselines import (BowForest, PlaneResiduals, RawForest, make_baselines)
+from landing_zone.learn.baselines.toy import boxes_and_flats
 from landing_zone.errors import DatasetError, ModelError
 
 
@@ -62,7 +62,7 @@ def test_codebook_learned_on_a_quarter():
     words = model.fit_codebook(x)
     # Two of the eight volumes feed k-means; with more words asked than voxels, each voxel of
     # that sample becomes a word.
-    from landing_zone.baselines import voxel_features
+    from landing_zone.learn.baselines import voxel_features
     per_volume = np.bincount(voxel_features(x).volume, minlength=8)
     assert words.shape[0] in {int(per_volume[i] + per_volume[j])
                               for i in range(8) for j in range(i + 1, 8)}

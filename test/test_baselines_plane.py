@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from landing_zone.baselines import PlaneResiduals, fit_plane, plane_residual_sum
-from landing_zone.baselines.toy import heightfield_volume
+from landing_zone.learn.baselines import PlaneResiduals, fit_plane, plane_residual_sum
+from landing_zone.learn.baselines.toy import heightfield_volume
 from landing_zone.errors import DatasetError, InvalidCloudError
 
 

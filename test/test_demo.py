@@ -1,4 +1,4 @@
-"""The demo: label scores, the terminal tile map, and the whole run on the default site."""
+"""The demo: the terminal tile map, and the whole run on the default site."""
 from __future__ import annotations
 
 import json
@@ -7,36 +7,11 @@ import numpy as np
 import pytest
 from rich.console import Console
 
-from landing_zone.demo import label_scores, run_demo, tile_map
+from landing_zone.demo import run_demo, tile_map
 from landing_zone.errors import ModelError
 from test_assessor import make_model
 from test_grid import hand_made
-
-
-def labels_for(assessment, unsafe):
-    return {'frame_id': 'map', 'tile_size': 1.0,
-            'tiles': [{'x': float(x), 'y': float(y), 'safe': (float(x), float(y)) not in unsafe}
-                      for x, y in assessment.centers]}
-
-
-def test_label_scores_rank_judged_tiles_only():
-    a = hand_made()  # p: (0,0) 1.0, (0,1) NaN, (1,0) 0.0, (1,1) 0.994, (2,0) 0.5, (2,1) 0.006
-    centers = [tuple(c) for c in a.centers.tolist()]
-    # the two lowest-p judged tiles unsafe: a perfect ranking
-    auc, fraction, n = label_scores(a, labels_for(a, {centers[2], centers[5]}))
-    assert auc == 1.0 and n == 5 and fraction == pytest.approx(5 / 6)
-    # the highest-p tile unsafe: ranked above every safe tile, AUC 0
-    auc, _, _ = label_scores(a, labels_for(a, {centers[0]}))
-    assert auc == 0.0
-    # p = 0.5 unsafe among {1.0, 0.0, 0.994, 0.006} safe: beaten by 2 of 4
-    auc, _, _ = label_scores(a, labels_for(a, {centers[4]}))
-    assert auc == pytest.approx(0.5)
-    # one class among the judged: undefined
-    assert label_scores(a, labels_for(a, {centers[1]}))[0] is None
-    # labels outside the grid do not count as judged
-    doc = labels_for(a, set())
-    doc['tiles'].append({'x': 100.5, 'y': 0.5, 'safe': False})
-    assert label_scores(a, doc)[1:] == (pytest.approx(5 / 7), 5)
+from test_labels import labels_for
 
 
 def test_tile_map_marks_obstacles_and_unknown_tiles():

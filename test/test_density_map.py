@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from landing_zone.config import MapConfig
-from landing_zone.density_map import DensityMap
+from landing_zone.mapping.density_map import DensityMap
 from landing_zone.errors import ConfigError
 
 VS = 0.25

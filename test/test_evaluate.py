@@ -7,12 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from landing_zone.calibration import (binary_nll, expected_calibration_error, fit_temperature,
-                                      reliability)
+from landing_zone.learn.calibration import (binary_nll, expected_calibration_error,
+                                            fit_temperature, reliability)
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.evaluate import (class_models, confident_mistakes, evaluate_methods,
-                                   evaluate_scenes, markdown_table, results_json)
-from landing_zone.model import SafetyNet, SafetyNetConfig, predict
+from landing_zone.learn.evaluate import (evaluate_methods, evaluate_scenes, markdown_table,
+                                         results_json)
+from landing_zone.learn.figures import class_models, confident_mistakes
+from landing_zone.judging.inference import predict
+from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from test_train import quick_config, toy_scenes
 
 
@@ -139,7 +141,7 @@ def test_class_models_move_the_score_the_right_way():
 
 
 def test_evaluate_writes_the_report(tmp_path):
-    from landing_zone.train import train
+    from landing_zone.learn.train import train
     model = tmp_path / 'm.safetensors'
     train(toy_scenes(16, seed=1), model, quick_config(), progress=False)
     out = tmp_path / 'eval'
@@ -163,8 +165,8 @@ def test_several_models_share_one_table(tmp_path):
     import shutil
     from dataclasses import asdict
     from landing_zone.config import TileConfig
-    from landing_zone.model import save_model
-    from landing_zone.train import train
+    from landing_zone.judging.checkpoint import save_model
+    from landing_zone.learn.train import train
     a = tmp_path / 'a.safetensors'
     train(toy_scenes(16, seed=1), a, quick_config(), progress=False)
     b = tmp_path / 'b.safetensors'
@@ -200,7 +202,7 @@ def test_cli_trains_and_evaluates_a_simulated_dataset(tmp_path):
             '--out', str(model), '--epochs', '1', '--augment-copies', '1', '--val-fraction',
             '0.2')
     assert r.returncode == 0, r.stderr
-    from landing_zone.model import read_metadata
+    from landing_zone.judging.checkpoint import read_metadata
     assert read_metadata(model)['n_train_scenes'] + read_metadata(model)['n_val_scenes'] \
         == 2 * 25  # the train split (25 of 30 scenes) twice
     assert 'wrote' in r.stdout and model.exists()

@@ -52,7 +52,7 @@ def flights(tmp_path_factory):
 
 def _load(bag: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points (N, 3), labels (N,) and the sensor origin of each point's cloud (N, 3)."""
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     from msg_adapters.pointcloud import cloud_to_structured
     from msg_adapters.pose import pose_stamped_to_arrays
     poses, pts, lab, org = {}, [], [], []
@@ -373,11 +373,10 @@ def test_line_spacing_sets_the_passes(flights):
     assert abs(result.density - 600.0) / 600.0 < 0.15
 
 
-@pytest.mark.parametrize('module', ['landing_zone', 'landing_zone.sim'])
-def test_cli_options_reach_the_labels_and_bad_values_are_one_line(module, tmp_path):
+def test_cli_options_reach_the_labels_and_bad_values_are_one_line(tmp_path):
     out = tmp_path / 's.mcap'
-    common = [sys.executable, '-m', module, 'simulate-flight', '--out', str(out), '--size', '4',
-              '--obstacles', '1', '--height', '4', '--density', '300']
+    common = [sys.executable, '-m', 'landing_zone', 'simulate-flight', '--out', str(out),
+              '--size', '4', '--obstacles', '1', '--height', '4', '--density', '300']
     run = subprocess.run(common + ['--vegetation', 'clumped', '--clump-size', '50',
                                    '--bushes', '0.2', '--scan-pattern', 'rosette',
                                    '--tilt', '25'],

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from landing_zone.assessor import Assessment
-from landing_zone.bagio import typestore
-from landing_zone.sites import LandingSite
+from msg_adapters import jazzy_typestore as typestore
+from landing_zone.judging.sites import LandingSite
 from msg_adapters import MessageTypes
 from msg_adapters import grid as g
 from msg_adapters.pointcloud import cloud_to_structured

@@ -16,9 +16,11 @@ import numpy as np
 import pytest
 
 from landing_zone import cli
-from landing_zone.bagio import BagWriter, RawBag
-from landing_zone.insert import (ObstacleScene, alter_returns, ground_height, insert_obstacles,
-                                 read_flight, segments_meet_boxes)
+from landing_zone.io.bags import BagWriter, RawBag
+from landing_zone.sim.alteration import ObstacleScene, alter_returns, segments_meet_boxes
+from landing_zone.sim.insert import insert_obstacles
+from landing_zone.sim.placement import ground_height
+from landing_zone.sim.recorded import read_flight
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.obstacles import Obstacle, get_model
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
@@ -204,7 +206,7 @@ def _to_ros1(src, dst):
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     ros1 = get_typestore(Stores.ROS1_NOETIC)
     t = ros1.types
     with Writer(dst) as writer:

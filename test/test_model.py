@@ -6,8 +6,10 @@ import pytest
 import torch
 
 from landing_zone.errors import ConfigError, ModelError
-from landing_zone.model import (PAPER_SPEC, Layer, SafetyNet, SafetyNetConfig, format_spec,
-                                load_model, parse_spec, predict, read_metadata, save_model)
+from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+from landing_zone.judging.inference import predict
+from landing_zone.judging.net import PAPER_SPEC, SafetyNet, SafetyNetConfig
+from landing_zone.judging.spec import Layer, format_spec, parse_spec
 
 SMALL = 'C5-F8-P2-D32'
 
@@ -191,42 +193,27 @@ def test_predict_rejects_bad_inputs():
     assert predict(net, np.zeros((0, 1, 32, 32, 32), np.float32)).shape == (0,)
 
 
-# --- the format without the safetensors package ------------------------------------------------
+# --- the files: the safetensors package, and the models shipped in models/ ----------------------
 
-def without_safetensors(monkeypatch):
-    import sys
-    for name in ('safetensors', 'safetensors.torch'):
-        monkeypatch.setitem(sys.modules, name, None)  # import now raises ImportError
-
-
-def test_own_safetensors_writer_and_reader_agree_with_the_library(tmp_path, monkeypatch):
-    from safetensors.torch import load_file
-    net = small_net().eval()
-    x = volumes(3)
-    ours = tmp_path / 'ours.safetensors'
-    lib = tmp_path / 'lib.safetensors'
-    save_model(lib, net, {'note': 'library'})
-    with monkeypatch.context() as m:
-        without_safetensors(m)
-        save_model(ours, net, {'note': 'library'})
-        # the library's file, read here
-        loaded, meta = load_model(lib)
-        assert meta['note'] == 'library'
-        np.testing.assert_array_equal(predict(loaded, x, precision='fp32'),
-                                      predict(net, x, precision='fp32'))
-    # our file, read by the library: same tensors, same metadata
-    a, b = load_file(str(ours)), load_file(str(lib))
-    assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
-    assert read_metadata(ours) == read_metadata(lib)
+def test_shipped_models_load_unchanged_with_their_metadata():
+    from pathlib import Path
+    models = Path(__file__).resolve().parents[1] / 'models'
+    x = volumes(2)
+    for path in sorted(models.glob('*.safetensors')):
+        net, meta = load_model(path)
+        assert meta['format'] == 'landing_zone.safety_net/1' and meta['model']['spec'] == net.spec
+        assert net.temperature > 0
+        if path.name != 'landing_zone.safetensors':
+            assert net.spec in path.name
+        assert predict(net, x).shape == (2,)
 
 
-def test_own_reader_refuses_damaged_files(tmp_path, monkeypatch):
+def test_damaged_files_are_refused(tmp_path):
     path = tmp_path / 'm.safetensors'
     save_model(path, small_net())
     data = path.read_bytes()
     cases = {'short': data[:5], 'truncated': data[:-8], 'trailing': data + b'\0' * 8,
              'header': (10 ** 9).to_bytes(8, 'little') + data[8:]}
-    without_safetensors(monkeypatch)
     for name, blob in cases.items():
         bad = tmp_path / f'{name}.safetensors'
         bad.write_bytes(blob)

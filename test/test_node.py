@@ -1,7 +1,7 @@
 """The `assessor` node over loopback DDS: driven by `play`, it ends where `replay` ends.
 
-The node runs as a subprocess (``python -m landing_zone.node``) in a DDS domain of this test's
-own (from its pid), discovery limited to localhost; the test listens with a private rclpy
+The node runs as a subprocess (``python -m landing_zone.frontends.node``) in a DDS domain of this
+test's own (from its pid), discovery limited to localhost; the test listens with a private rclpy
 Context.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pytest
 
 pytest.importorskip('rclpy')
 
-from landing_zone.replay import replay  # noqa: E402
+from landing_zone.frontends.replay import replay  # noqa: E402
 from msg_adapters import stamp_to_ns  # noqa: E402
 from msg_adapters.pointcloud import cloud_to_structured  # noqa: E402
 
@@ -33,7 +33,7 @@ NODE_ARGS = ['-p', 'idle_flush:=0.5', '-p', 'qos_depth:=200', '-r', 'points:=/li
 @pytest.fixture(scope='module')
 def flight(tmp_path_factory):
     """A small simulated flight: an 8 m site with two obstacles, one pass (about 2 s)."""
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     from landing_zone.sim.flight import FlightConfig, simulate_flight
 
     path = tmp_path_factory.mktemp('bag') / 'site.mcap'
@@ -43,7 +43,7 @@ def flight(tmp_path_factory):
 
 
 def start_node(*ros_args):
-    return subprocess.Popen([sys.executable, '-m', 'landing_zone.node', '--ros-args',
+    return subprocess.Popen([sys.executable, '-m', 'landing_zone.frontends.node', '--ros-args',
                              *map(str, ros_args)], env=ENV, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
 
@@ -239,7 +239,7 @@ def test_bad_input_is_counted_and_the_node_keeps_running(model_file, listener):
 
 
 def test_missing_model_refuses_to_start_with_one_line(tmp_path):
-    proc = subprocess.run([sys.executable, '-m', 'landing_zone.node', '--ros-args', '-p',
+    proc = subprocess.run([sys.executable, '-m', 'landing_zone.frontends.node', '--ros-args', '-p',
                            f'model.path:={tmp_path / "none.safetensors"}'], env=ENV,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 1
@@ -252,7 +252,7 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
     from rcl_interfaces.srv import DescribeParameters, SetParameters
     from rclpy.parameter import Parameter
 
-    from landing_zone.node import PARAMETERS, default_parameters
+    from landing_zone.config import PARAMETERS, default_parameters
 
     # every parameter has a description; the YAML lists every one of them
     assert set(default_parameters()) | {'region_center'} == set(PARAMETERS)
@@ -292,8 +292,8 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
 def test_params_file_has_the_ros_layout_and_every_default():
     import yaml
 
-    from landing_zone.node import default_parameters
-    from landing_zone.stream import read_params_file
+    from landing_zone.config import default_parameters
+    from landing_zone.io.params import read_params_file
 
     root = os.path.join(os.path.dirname(__file__), '..', 'config', 'assessor.yaml')
     flat = read_params_file(root)

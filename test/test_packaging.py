@@ -98,8 +98,8 @@ def test_pip_wheel_install_puts_scripts_on_path(source, tmp_path):
     for script in ('assessor', 'landing-zone'):
         path = prefix / 'bin' / script
         assert path.is_file() and os.access(path, os.X_OK), script
-        assert f'from {"landing_zone.node" if script == "assessor" else "landing_zone.cli"} ' \
-               'import main' in path.read_text()
+        module = 'landing_zone.frontends.node' if script == 'assessor' else 'landing_zone.cli'
+        assert f'from {module} import main' in path.read_text()
     assert (prefix / 'share' / 'landing_zone' / 'config' / 'assessor.yaml').is_file()
     assert (prefix / 'share' / 'landing_zone' / 'models' / 'landing_zone.safetensors').is_file()
 

@@ -14,7 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from landing_zone.bagio import typestore
+from msg_adapters import jazzy_typestore as typestore
 from landing_zone.errors import InvalidCloudError
 from msg_adapters import MessageTypes, make_header
 from msg_adapters.pointcloud import (

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from landing_zone.bagio import typestore
+from msg_adapters import jazzy_typestore as typestore
 from landing_zone.errors import InvalidPoseError, LandingZoneError
 from msg_adapters import MessageTypes, as_message_types, make_header, ns_to_stamp, stamp_to_ns
 from msg_adapters.pose import (

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from landing_zone.assessor import Assessor
-from landing_zone.bagio import BagWriter, read_messages
+from landing_zone.io.bags import BagWriter, read_messages
 from landing_zone.errors import BagError
-from landing_zone.replay import output_topics, replay
-from landing_zone.stream import NS, StreamConfig
+from landing_zone.frontends.replay import output_topics, replay
+from landing_zone.config import StreamConfig
+from landing_zone.frontends.stream import NS
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
 from msg_adapters.grid import grid_values
 from msg_adapters.pointcloud import cloud_to_structured, make_cloud, points_to_structured

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import DatasetError, SimulationError
-from landing_zone.sim import dataset as ds_mod
-from landing_zone.sim.dataset import (SWEEPS, SceneDataset, scene_plan, scene_rng,
-                                      select_scenes, simulate_dataset)
+from landing_zone.sim import shards as shards_mod
+from landing_zone.sim import sweeps as sweeps_mod
+from landing_zone.sim.dataset import simulate_dataset
+from landing_zone.sim.shards import SceneDataset
+from landing_zone.sim.sweeps import SWEEPS, scene_plan, scene_rng, select_scenes
 from landing_zone.sim.obstacles import get_model, models
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,8 +78,8 @@ def test_test_group_models_never_in_train_scenes():
     for i in select_scenes('synth2', 1500):
         plan = scene_plan('synth2', int(i))
         if plan['label'] == 0:
-            name = ds_mod._choose_model(SWEEPS['synth2'], plan['split'],
-                                        scene_rng('synth2', int(i), 0))
+            name = sweeps_mod.choose_model(SWEEPS['synth2'], plan['split'],
+                                           scene_rng('synth2', int(i), 0))
             drawn[plan['split']].add(name)
     assert not drawn['train'] & test_models
     assert drawn['test'] <= test_models
@@ -90,7 +92,7 @@ def test_dataset_files_and_loader(small):
     root, summary = small
     assert summary['scenes'] == 6 and summary['generated'] == 6
     meta = json.loads((root / 'meta.json').read_text())
-    assert meta['complete'] and meta['format_version'] == ds_mod.FORMAT_VERSION
+    assert meta['complete'] and meta['format_version'] == shards_mod.FORMAT_VERSION
     assert meta['dataset'] == 'synth2' and meta['seed'] == 5
     assert set(meta['obstacle_split']['train']).isdisjoint(meta['obstacle_split']['test'])
     train, test = SceneDataset(root, 'train'), SceneDataset(root, 'test')
@@ -171,9 +173,9 @@ def test_interrupted_run_resumes(small, tmp_path):
 def test_delta_coding_is_exact(rng):
     mm = rng.integers(-32768, 32768, (5000, 3)).astype(np.int16)
     mm[:3] = [[32767, -32768, 0], [-32768, 32767, 1], [32767, 32767, -1]]  # worst jumps
-    enc = ds_mod._delta_encode(mm)
+    enc = shards_mod._delta_encode(mm)
     assert enc.dtype == np.int16 and enc.shape == (3, 5000)
-    np.testing.assert_array_equal(ds_mod._delta_decode(enc), mm)
+    np.testing.assert_array_equal(shards_mod._delta_decode(enc), mm)
 
 
 def test_incomplete_or_missing_dataset_is_an_error(tmp_path):
@@ -200,12 +202,12 @@ def test_bad_arguments_raise_before_any_work(kwargs, match, tmp_path):
 
 
 def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
-    # The dataset machine has numpy, scipy, numba, trimesh and embreex only: generate with
-    # every other installed package made unimportable (optional imports of trimesh and scipy
-    # then fail as they would there; tqdm too, so the plain progress line is used).
+    # A dataset machine needs numpy, scipy, numba, trimesh, embreex and tqdm only: generate
+    # with every other installed package made unimportable (optional imports of trimesh and
+    # scipy then fail as they would there).
     code = (
         'import importlib.machinery, sys\n'
-        'ALLOWED = {"numpy", "scipy", "numba", "trimesh", "embreex", "landing_zone"}\n'
+        'ALLOWED = {"numpy", "scipy", "numba", "trimesh", "embreex", "tqdm", "landing_zone"}\n'
         'class Block:\n'
         '    def find_spec(self, name, path=None, target=None):\n'
         '        top = name.split(".")[0]\n'
@@ -217,10 +219,8 @@ def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
         '        return None\n'
         'sys.meta_path.insert(0, Block())\n'
         'BEFORE = set(sys.modules)  # (site hooks of the venv load before this)\n'
-        'from landing_zone.sim.__main__ import main\n'
-        f'rc = main(["simulate", "--dataset", "synth1", "--out", r"{tmp_path / "d"}", '
-        '"--scenes", "2", "--workers", "1"])\n'
-        'assert rc == 0\n'
+        'from landing_zone.sim.dataset import simulate_dataset\n'
+        f'simulate_dataset("synth1", r"{tmp_path / "d"}", scenes=2, workers=1)\n'
         'files = [str(getattr(sys.modules[m], "__file__", "")) for m in list(sys.modules)\n'
         '         if m not in BEFORE]\n'
         'dirs = {f.split("-packages/")[1].split("/")[0] for f in files if "-packages/" in f}\n'
@@ -229,13 +229,12 @@ def test_generation_imports_only_the_dataset_machines_packages(tmp_path):
                          text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     third_party = set(out.stdout.strip().splitlines()[-1].split())
-    assert third_party <= {'numpy', 'scipy', 'numba', 'trimesh', 'embreex'}, third_party
-    assert 'scenes/s' in out.stderr  # the progress line without tqdm
+    assert third_party <= {'numpy', 'scipy', 'numba', 'trimesh', 'embreex', 'tqdm'}, third_party
     assert len(SceneDataset(tmp_path / 'd', 'all')) == 2
 
 
 def test_module_entry_point_reports_bad_input_in_one_line(tmp_path):
-    out = subprocess.run([sys.executable, '-m', 'landing_zone.sim', 'simulate', '--dataset',
+    out = subprocess.run([sys.executable, '-m', 'landing_zone', 'simulate', '--dataset',
                           'synth1', '--out', str(tmp_path / 'x'), '--scenes', '0'],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2

@@ -27,7 +27,7 @@ SMALL = FlightConfig(size=8.0, obstacles=3, kinds=('rock', 'cinder_block', 'tire
 def flight(tmp_path_factory):
     out = tmp_path_factory.mktemp('flight') / 'site.mcap'
     result = simulate_flight(SMALL, out)
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     msgs = list(read_messages(out))
     return out, result, msgs, json.loads(result.labels.read_text())
 
@@ -39,7 +39,7 @@ def clouds_of(msgs):
 
 def test_bag_topics_types_and_stamps(flight):
     out, result, msgs, _ = flight
-    from landing_zone.bagio import bag_topics
+    from landing_zone.io.bags import bag_topics
     from msg_adapters import stamp_to_ns
     from msg_adapters.pose import pose_stamped_to_arrays
     assert bag_topics(out) == {'/lidar/points': 'sensor_msgs/msg/PointCloud2',

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from landing_zone import cli
-from landing_zone.insert import read_flight
-from landing_zone.sim.dataset import SceneDataset
+from landing_zone.sim.recorded import read_flight
+from landing_zone.sim.shards import SceneDataset
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.hybrid import column_rays, simulate_hybrid
 from landing_zone.sim.obstacles import Obstacle, get_model, models
-from landing_zone.tiles import scene_to_input
+from landing_zone.judging.tiles import scene_to_input
 from test_insert import slab_hits
 
 

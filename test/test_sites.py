@@ -6,7 +6,7 @@ import pytest
 
 from landing_zone.config import SiteConfig
 from landing_zone.errors import ConfigError
-from landing_zone.sites import find_sites, footprint_mask, site_probabilities
+from landing_zone.judging.sites import find_sites, footprint_mask, site_probabilities
 
 
 def test_footprint_mask_counts_tiles_the_disc_overlaps():

@@ -8,7 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from landing_zone.assessor import Assessor
-from landing_zone.stream import NS, Stream, StreamConfig
+from landing_zone.config import StreamConfig
+from landing_zone.frontends.stream import NS, Stream
 from msg_adapters import make_header
 from msg_adapters.pointcloud import make_cloud, points_to_structured
 from msg_adapters.pose import make_pose_stamped

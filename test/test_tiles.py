@@ -6,8 +6,8 @@ import pytest
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
-from landing_zone.tiles import (extract_tiles, scene_to_input, tile_voxels, tiles_from_counts,
-                                tiles_in_box, widen_tiles)
+from landing_zone.judging.tiles import (extract_tiles, scene_to_input, tile_voxels,
+                                        tiles_from_counts, tiles_in_box, widen_tiles)
 
 VS = 0.05
 TV = 20
@@ -232,7 +232,7 @@ def flat_returns(rng, n=40000, half=3.0, sensor=(-6.0, 0.0, 5.0)):
 
 
 def test_extract_tiles_reads_a_density_map_like_its_counts(rng):
-    from landing_zone.density_map import DensityMap
+    from landing_zone.mapping.density_map import DensityMap
     dmap = DensityMap(MapConfig(size_xy=4.0, size_z=2.0, z_below=1.0))
     pts, origin = flat_returns(rng, half=2.0)
     dmap.integrate(pts, origin)
@@ -271,7 +271,7 @@ def test_scene_to_input_finds_the_ground_whatever_the_augmentation(rng):
 
 def test_scene_to_input_matches_a_deployed_map(rng):
     """The same returns, placed on tile (0, 0) of a full-size map, give the same input."""
-    from landing_zone.density_map import DensityMap
+    from landing_zone.mapping.density_map import DensityMap
     pts, origin = flat_returns(rng, n=20000, half=1.5)
     b = scene_to_input(pts, origin)
     dmap = DensityMap(MapConfig(size_xy=6.0), center=(0.5, 0.5, 0.0))

@@ -7,12 +7,15 @@ import torch
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
-from landing_zone.model import load_model, predict, save_model, SafetyNet, SafetyNetConfig
-from landing_zone.sim.dataset import Scene
-from landing_zone.tiles import scene_to_input
-from landing_zone.train import (AugmentedVolumes, EpochSampler, ScenePack, TrainConfig,
-                                cut_context, log_path, roc_auc, split_scenes, state_path,
-                                train, voxelize)
+from landing_zone.judging.checkpoint import load_model, save_model
+from landing_zone.judging.inference import predict
+from landing_zone.judging.net import SafetyNet, SafetyNetConfig
+from landing_zone.sim.shards import Scene
+from landing_zone.judging.tiles import scene_to_input
+from landing_zone.learn.samples import AugmentedVolumes, EpochSampler, cut_context, voxelize
+from landing_zone.learn.scenes import ScenePack, split_scenes
+from landing_zone.learn.state import log_path, state_path
+from landing_zone.learn.train import TrainConfig, roc_auc, train
 
 SMALL = 'C5-F8-P2-D32'
 
@@ -218,7 +221,7 @@ def test_edge_drop_cuts_only_the_context():
 
 
 def test_concatenated_sources_index_through():
-    from landing_zone.train import ConcatScenes
+    from landing_zone.learn.scenes import ConcatScenes
     a, b = toy_scenes(3, seed=1), toy_scenes(4, seed=2)
     both = ConcatScenes([a, b])
     assert len(both) == 7 and both.labels.tolist() == [0, 1, 0, 0, 1, 0, 1]
@@ -274,20 +277,21 @@ def test_bad_data_and_settings_are_refused(tmp_path):
 
 
 @pytest.mark.slow
-def test_training_needs_only_torch_numpy_numba_scipy_sklearn(tmp_path):
-    """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn)."""
+def test_training_needs_only_torch_numpy_numba_scipy_sklearn_safetensors_tqdm(tmp_path):
+    """What a bare training box offers (Python, torch, numpy, numba, scipy, scikit-learn, and
+    safetensors and tqdm, which the package requires: no hand-made copies of them)."""
     import subprocess
     import sys
     from pathlib import Path
     script = f'''
 import sys
-for name in ('typer', 'tqdm', 'safetensors', 'optuna', 'rclpy', 'rosbags', 'matplotlib',
-             'trimesh', 'embreex', 'mcap', 'rich'):
+for name in ('typer', 'optuna', 'rclpy', 'rosbags', 'matplotlib', 'trimesh', 'embreex', 'mcap',
+             'rich'):
     sys.modules[name] = None
 sys.path.insert(0, {str(Path(__file__).parent)!r})
 from test_train import toy_scenes, quick_config
-from landing_zone.train import train
-from landing_zone.model import load_model
+from landing_zone.learn.train import train
+from landing_zone.judging.checkpoint import load_model
 train(toy_scenes(8, 0), {str(tmp_path / 'm.safetensors')!r}, quick_config(), progress=True)
 print(load_model({str(tmp_path / 'm.safetensors')!r})[0].spec)
 '''
@@ -300,7 +304,7 @@ print(load_model({str(tmp_path / 'm.safetensors')!r})[0].spec)
 # --- architecture search -----------------------------------------------------------------------
 
 def test_spec_from_search_params():
-    from landing_zone.tune import spec_from_params
+    from landing_zone.learn.tune import spec_from_params
     params = {'conv_layers': 2, 'kernel_0': 7, 'filters_0': 32, 'pool_0': 2, 'kernel_1': 5,
               'filters_1': 64, 'pool_1': 2, 'log2_hidden': 9}
     assert spec_from_params(params) == 'C7-F32-P2-C5-F64-P2-D512'
@@ -310,7 +314,7 @@ def test_spec_from_search_params():
 
 @pytest.mark.slow
 def test_search_resumes_from_its_storage(tmp_path):
-    from landing_zone.tune import TuneConfig, tune
+    from landing_zone.learn.tune import TuneConfig, tune
     scenes = toy_scenes(8, seed=11)
     storage = f'sqlite:///{tmp_path / "tune.db"}'
     # a tiny budget; nets above 300k parameters are pruned unseen, which most draws are

@@ -34,7 +34,6 @@ rosbags is imported only when the bag is written.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
@@ -45,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from landing_zone.errors import BagError, SimulationError
+from landing_zone.io.labels import labels_path_for, write_labels
 from landing_zone.sim.grass import (VEGETATION_PRESETS, Bush, GrassConfig, VegetationConfig,
                                     _poisson_blades, bush_mesh, grass_mesh, place_bushes,
                                     vegetation_blades)
@@ -539,7 +539,7 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
     out = Path(out)
     if out.suffix != '.mcap':
         raise SimulationError(f'the flight bag must be a .mcap file, got {out}')
-    labels_path = out.with_name(out.stem + '.labels.json')
+    labels_path = labels_path_for(out)
     if not overwrite:
         for p in (out, labels_path):
             if p.exists():
@@ -587,9 +587,7 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
                        'scan_pattern': config.scan.to_dict()},
               'bushes': [b.to_json() for b in site.bushes],
               'flight': config.to_json() | {'speed': speed, 'passes': passes.tolist()}}
-    tmp = labels_path.with_name(labels_path.name + '.tmp')
-    tmp.write_text(json.dumps(labels, indent=1) + '\n', encoding='utf-8')
-    os.replace(tmp, labels_path)
+    write_labels(labels_path, labels)
     timings['write'] = time.perf_counter() - t0
     area = float(np.prod(site.hi - site.lo))
     return FlightResult(out, labels_path, n_clouds, n_points, path.duration, speed, len(passes),
@@ -602,12 +600,12 @@ def _write_bag(out: Path, config: FlightConfig, scans: list[list[Returns] | None
 
     Messages go in stamp order (a pose just before the cloud of the same stamp).
     """
-    from landing_zone.bagio import BagWriter, typestore
-    from msg_adapters import MessageTypes, make_header
+    from landing_zone.io.bags import BagWriter
+    from msg_adapters import MessageTypes, jazzy_typestore, make_header
     from msg_adapters.pointcloud import make_cloud, points_to_structured
     from msg_adapters.pose import make_pose_stamped
 
-    types = MessageTypes.rosbags(typestore())
+    types = MessageTypes.rosbags(jazzy_typestore())
     tilt = math.radians(config.tilt)
     half = 0.5 * config.size
     n_clouds = n_points = on_site = 0

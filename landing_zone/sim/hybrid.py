@@ -3,18 +3,18 @@
 Usage::
 
     landing-zone simulate --dataset hybrid --from a.mcap --from b.mcap --out data/hybrid
-    python -m landing_zone.sim simulate --dataset hybrid --from a.mcap b.mcap --out data/hybrid
 
 Real grass, ground and sensor noise come from the flights; the obstacles come from the
 simulator's library and are put in by cutting short the rays that would have hit them
-(:func:`landing_zone.insert.alter_returns`), so the set is labelled exactly, like synth1/2, but
-its clutter is the flights'. The result has the synth datasets' format (``meta.json`` and
-``shards/*.npz``, see :mod:`landing_zone.sim.dataset`), so :class:`SceneDataset`,
-``landing-zone train`` and ``landing-zone evaluate`` (and the augmentation) read it unchanged.
+(:func:`landing_zone.sim.alteration.alter_returns`), so the set is labelled exactly, like
+synth1/2, but its clutter is the flights'. The result has the synth datasets' format
+(``meta.json`` and ``shards/*.npz``, see :mod:`landing_zone.sim.shards`), so
+:class:`SceneDataset`, ``landing-zone train`` and ``landing-zone evaluate`` (and the
+augmentation) read it unchanged.
 
 **Patches.** For each flight, every return and its sensor origin (the pose interpolated at the
-cloud's stamp, :func:`landing_zone.insert.read_flight`). Candidate patches are the 1 m tiles of
-the global lattice (centres at x.5) in the flight's clear region: the safe tiles of
+cloud's stamp, :func:`landing_zone.sim.recorded.read_flight`). Candidate patches are the 1 m
+tiles of the global lattice (centres at x.5) in the flight's clear region: the safe tiles of
 ``BAG.labels.json`` whose eight neighbours are safe too (no labelled obstacle reaches the tile's
 context), within ``region`` if one is given; or, for a flight without labels, the tiles of
 ``region``. A candidate must hold ``MIN_PATCH_RETURNS`` returns and its neighbours half that
@@ -23,13 +23,13 @@ context), within ``region`` if one is given; or, for a flight without labels, th
 **A patch** keeps what a synth scene keeps: every ray that passes through the tile's padded
 column (the tile and 0.3 m around it, from 1 m below to 2 m above its ground; see
 :class:`~landing_zone.sim.scene.PatchConfig`), found for all patches at once by a compiled
-ray/box pass over the flight. Its ground is :func:`landing_zone.insert.ground_height` at the
+ray/box pass over the flight. Its ground is :func:`landing_zone.sim.placement.ground_height` at the
 tile centre; the patch frame puts the tile centre at (0, 0) and that ground at z = 0. Half the
 patches (a seeded draw) get one obstacle, placed as synth2 places them
 (:func:`~landing_zone.sim.scene.simulate_patch`): half of those wholly inside the tile, half
 straddling its edge; its model drawn as synth2 draws them (rocks, tires, cinder blocks) from
 the split's obstacle group; standing on the ground estimated around it, sunk by
-``landing_zone.insert.SINK`` (and the model's embedding). The altered returns get hit class 2
+``landing_zone.sim.insert.SINK`` (and the model's embedding). The altered returns get hit class 2
 (obstacle); the others keep the flight's ``label`` field (0 ground, 1 grass, 2 obstacle), or
 255 (unknown) for flights without one.
 
@@ -57,7 +57,7 @@ import numba as nb
 import numpy as np
 
 from landing_zone.errors import ConfigError, DatasetError, SimulationError
-from landing_zone.insert import segment_meets_box
+from landing_zone.sim.alteration import segment_meets_box
 
 __all__ = ['simulate_hybrid', 'plan_flight', 'column_rays', 'MIN_PATCH_RETURNS']
 
@@ -155,9 +155,9 @@ def column_rays(points: np.ndarray, cloud: np.ndarray, origins: np.ndarray,
 
 def _tile_split(tiles: np.ndarray) -> np.ndarray:
     """A fifth of the tiles (by a hash of their index) are test tiles."""
-    from landing_zone.sim.dataset import TEST_FRACTION, _mix
+    from landing_zone.sim.sweeps import TEST_FRACTION, mix
     keys = (tiles[:, 0].astype(np.int64) & 0xFFFFFFFF) << 32 | (tiles[:, 1] & 0xFFFFFFFF)
-    h = _mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
+    h = mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
     return h < np.uint64(int(1000 * TEST_FRACTION))
 
 
@@ -215,7 +215,9 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
     """Read a flight and decide its patches: tiles, grounds, columns, labels, splits."""
     from scipy.spatial import cKDTree
 
-    from landing_zone.insert import ground_height, labels_path_for, read_flight, read_labels
+    from landing_zone.io.labels import labels_path_for, read_labels
+    from landing_zone.sim.placement import ground_height
+    from landing_zone.sim.recorded import read_flight
     from landing_zone.sim.scene import PatchConfig
 
     fr = read_flight(bag, args['points_topic'], args['pose_topic'], args['frame_id'])
@@ -250,9 +252,9 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
 def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.ndarray,
                   scene_index: int, seed: int) -> dict[str, Any]:
     """One scene: the column's rays in the patch frame, with an obstacle if it is unsafe."""
-    from landing_zone.insert import (RANGE_SIGMA, SINK, _ground_radius, alter_returns,
-                                     ground_height)
-    from landing_zone.sim.dataset import SWEEPS, _choose_model
+    from landing_zone.sim.alteration import RANGE_SIGMA, alter_returns
+    from landing_zone.sim.placement import SINK, ground_height, ground_radius
+    from landing_zone.sim.sweeps import SWEEPS, choose_model
     from landing_zone.sim.mesh import OBSTACLE
     from landing_zone.sim.obstacles import Obstacle, get_model
 
@@ -266,7 +268,7 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
     obstacle = None
     altered = 0
     if plan['unsafe'][t]:
-        model = get_model(_choose_model(SWEEPS['synth2'], split, rng))
+        model = get_model(choose_model(SWEEPS['synth2'], split, rng))
         # as simulate_patch: half inside the tile for any yaw, half straddling its edge
         if rng.uniform() < 0.5:
             free = 0.5 - model.radius
@@ -274,7 +276,7 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
             free = 0.5 + 0.5 * model.radius
         x, y = rng.uniform(-free, free, 2) + (cx, cy)
         yaw = float(rng.uniform(0.0, 2.0 * np.pi))
-        radius = _ground_radius(model)
+        radius = ground_radius(model)
         near = tree.query_ball_point((x, y), radius)
         gz = ground_height(fr.points[near], x, y, radius) if near else None
         z = (g if gz is None else gz) - model.embed - SINK
@@ -308,7 +310,8 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
 def _hybrid_meta(flights: list[dict[str, Any]], shards: list[dict[str, Any]],
                  args: dict[str, Any], split_by: str, n_scenes: int,
                  counts: dict[str, dict[str, int]]) -> dict[str, Any]:
-    from landing_zone.sim.dataset import FORMAT_VERSION, SWEEPS
+    from landing_zone.sim.shards import FORMAT_VERSION
+    from landing_zone.sim.sweeps import SWEEPS
     from landing_zone.sim.obstacles import models
     from landing_zone.sim.scene import PatchConfig
 
@@ -372,9 +375,10 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     """
     from scipy.spatial import cKDTree
 
-    from landing_zone.insert import read_flight
-    from landing_zone.sim.dataset import (_Progress, _shard_arrays, _shard_complete, _shard_name,
-                                          _write_json, _write_npz, prepare_output)
+    from landing_zone.sim.recorded import read_flight
+    from landing_zone.sim.dataset import progress_bar
+    from landing_zone.sim.shards import (shard_arrays, shard_complete, shard_name, write_json,
+                                         write_npz, prepare_output)
 
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]
@@ -419,7 +423,7 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
                              'returns': plan['returns'], 'labels': plan['labels']})
         for k in range(0, n, shard_size):
             sel = range(k, min(k + shard_size, n))
-            shards.append({'file': _shard_name(len(shards)), 'scenes': len(sel),
+            shards.append({'file': shard_name(len(shards)), 'scenes': len(sel),
                            'first_index': scene + k, 'flight': f,
                            'test': ''.join('1' if plan['splits'][t] == 'test' else '0'
                                            for t in sel),
@@ -437,11 +441,11 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     prepare_output(out, meta, _plan_key)
 
     done = generated = 0
-    bar = _Progress(scene, 0, progress, f'hybrid -> {out}')
+    bar = progress_bar(scene, 0, progress, f'hybrid -> {out}')
     try:
         for plan in plans:
             mine = [s for s in shards if s['flight'] == plan['index']]
-            todo = [s for s in mine if not _shard_complete(
+            todo = [s for s in mine if not shard_complete(
                 out / s['file'], list(range(s['first_index'], s['first_index'] + s['scenes'])))]
             done += sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo)
             bar.update(sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo))
@@ -457,14 +461,14 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
                         t = idx - plan['first_scene']
                         records.append(_patch_record(plan, fr, tree, t, rays[t], idx,
                                                      args['seed']))
-                    _write_npz(out / s['file'], _shard_arrays(records))
+                    write_npz(out / s['file'], shard_arrays(records))
                     generated += len(records)
                     bar.update(len(records))
                 del fr, tree, rays
     finally:
         bar.close()
     meta['complete'] = True
-    _write_json(meta_path, meta)
+    write_json(meta_path, meta)
     seconds = time.perf_counter() - t_start
     nbytes = sum(f.stat().st_size for f in (out / 'shards').glob('*.npz'))
     return {'dataset': 'hybrid', 'out': str(out), 'scenes': scene, 'generated': generated,

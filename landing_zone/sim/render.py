@@ -9,7 +9,6 @@ display needed).
 """
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from landing_zone.errors import BagError, DatasetError, SimulationError
+from landing_zone.io.labels import labels_path_for, read_labels
 from landing_zone.sim.mesh import GRASS, GROUND, OBSTACLE
 
 __all__ = ['render', 'render_points', 'render_library', 'CLASS_COLOURS']
@@ -148,7 +148,7 @@ def render_library(out: str | os.PathLike) -> Path:
 
 
 def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
-    from landing_zone.sim.dataset import SceneDataset
+    from landing_zone.sim.shards import SceneDataset
     ds = SceneDataset(root, split)
     if not -len(ds) <= index < len(ds):
         raise DatasetError(f'scene {index} out of range: {root} ({split}) holds {len(ds)}')
@@ -180,7 +180,7 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
 
 
 def _render_flight(bag: Path, out: Path) -> Path:
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     from msg_adapters.pointcloud import cloud_to_structured
     parts, labels = [], []
     has_labels = True
@@ -196,11 +196,11 @@ def _render_flight(bag: Path, out: Path) -> Path:
     points = np.concatenate(parts)
     cls = np.concatenate(labels) if has_labels else None
     boxes, polygons = [], []
-    truth = bag.with_name(bag.stem + '.labels.json')
+    truth = labels_path_for(bag)
     title = f'{bag.name}: {len(points):,} returns'
     band = window = None
     if truth.exists():
-        info = json.loads(truth.read_text(encoding='utf-8'))
+        info = read_labels(truth)
         ts = float(info.get('tile_size', 1.0))
         for t in info['tiles']:
             if not t['safe']:

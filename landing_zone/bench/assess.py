@@ -1,0 +1,193 @@
+"""`landing-zone bench assess`: tiles + CNN for a full 20 m x 20 m map, and training costs.
+
+The map is the integrate benchmark's scene (rolling ground with grass, sensor 8 m up and 10 m
+back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1 m. Measured:
+
+- extraction of all 400 tiles (:func:`extract_tiles`: the map's counts, ground, inputs);
+- the network on the 400 inputs in fp32 (default layout and channels-last) and, where the CPU
+  has native bf16 (AVX-512 BF16 / AMX) or on CUDA, bf16 channels-last: ms per tile in a batch
+  and seconds per map (extraction + network);
+- re-assessing only the tiles a new batch of returns touched (the map's dirty tiles, widened by
+  one tile since inputs reach into the neighbours' padding);
+- for reference, a training step (forward + backward + SGD, batch 20) and the data pipeline
+  (re-voxelizing one 26k-return patch, one process).
+
+Two nets are timed: the shipped model (:data:`~landing_zone.judging.net.DEFAULT_SPEC`) and the
+paper's :data:`~landing_zone.judging.net.PAPER_SPEC`, each loaded from ``models/`` where the file
+is there, otherwise an untrained net of that architecture, which costs exactly the same (timing
+only: its outputs mean nothing). Figures are medians of repeats (best in brackets): the cores
+are shared.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+import numpy as np
+import torch
+
+from landing_zone.config import MapConfig, TileConfig
+from landing_zone.mapping.density_map import DensityMap
+from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.inference import Predictor, bf16_supported
+from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
+from landing_zone.judging.tiles import (CountBuffers, PatchVoxelizer, extract_tiles,
+                                        widen_tiles)
+
+from landing_zone.bench.integrate import SENSOR, make_batches
+
+TARGET_MAP_S = 1.0
+AIM_MAP_S = 0.25
+TARGET_MS_PER_TILE = 5.0
+
+
+def _times(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
+    fn()  # warm-up: compilation, inference copies, first touch
+    ts = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts)), float(np.min(ts))
+
+
+def _model(spec: str) -> tuple[SafetyNet, str]:
+    from landing_zone.assessor import default_model_path
+    try:
+        shipped = default_model_path()
+        path = shipped if spec == DEFAULT_SPEC else shipped.parent / f'paper_{spec}.safetensors'
+        net, _ = load_model(path)
+        if net.spec == spec:
+            return net, f'{net.spec} ({"shipped model" if path == shipped else path.name})'
+    except Exception:  # no such model file (or unreadable): time an untrained one
+        pass
+    torch.manual_seed(0)
+    return SafetyNet(SafetyNetConfig(spec)).eval(), f'{spec} (untrained: timing only)'
+
+
+def _network_rows(net: SafetyNet, inputs: np.ndarray, repeats: int, device: str
+                  ) -> list[tuple[str, float, float]]:
+    rows = []
+    variants = [('fp32', False), ('fp32', True)]
+    if device == 'cuda' or bf16_supported():
+        variants.append(('bf16', True))
+    for precision, cl in variants:
+        with Predictor(net) as predictor:  # one inference copy per mode, as the assessor keeps
+            med, best = _times(lambda: predictor(inputs, 256, precision, channels_last=cl),
+                               repeats)
+        rows.append((f'{precision} {"channels-last" if cl else "default layout"}', med, best))
+    return rows
+
+
+def _train_step_ms(spec: str, precision: str, repeats: int = 3) -> tuple[float, float]:
+    torch.manual_seed(0)
+    net = SafetyNet(SafetyNetConfig(spec)).to(memory_format=torch.channels_last_3d).train()
+    opt = torch.optim.SGD(net.parameters(), lr=0.01, momentum=0.9, weight_decay=5e-4)
+    x = (torch.rand(20, 1, 32, 32, 32) * 2 - 1).contiguous(memory_format=torch.channels_last_3d)
+    y = (torch.rand(20) > 0.5).float()
+
+    def step() -> None:
+        with torch.autocast('cpu', dtype=torch.bfloat16, enabled=precision == 'bf16'):
+            _, loss = net(x, y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+
+    med, best = _times(step, repeats)
+    return med / 20 * 1e3, best / 20 * 1e3
+
+
+def run(batches: int = 30, seed: int = 0) -> dict:
+    """Measure and print the assessment benchmark; return its figures."""
+    batches = max(int(batches), 2)
+    repeats = 3
+    device = 'cuda' if torch.cuda.is_available() else 'cpu'
+    results: dict = {'torch_threads': torch.get_num_threads(), 'bf16_native': bf16_supported(),
+                     'device': device}
+    dmap = DensityMap(MapConfig())
+    for pts in make_batches(batches, seed):
+        dmap.integrate(pts, SENSOR)
+    tcfg = TileConfig()
+    print(f'map: 20 x 20 x 4 m at 5 cm, {batches} batches of 10,000 returns (the integrate '
+          f'scene); torch threads {torch.get_num_threads()}, native bf16: {bf16_supported()}')
+
+    buffers = CountBuffers()
+    ext_med, ext_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers), repeats)
+    cnt_med, _ = _times(dmap.counts, repeats)
+    batch = extract_tiles(dmap, tcfg, buffers=buffers)
+    n = len(batch)
+    results.update(tiles=n, valid_tiles=int(batch.valid.sum()), extract_s=ext_med,
+                   extract_counts_s=cnt_med)
+    print(f'extract {n} tiles ({int(batch.valid.sum())} valid): {ext_med * 1e3:.1f} ms '
+          f'({ext_best * 1e3:.1f}); of which reading the counts {cnt_med * 1e3:.1f} ms')
+
+    nets = {}
+    for spec in (DEFAULT_SPEC, PAPER_SPEC):
+        net, label = _model(spec)
+        if device == 'cuda':
+            net = net.to('cuda')
+        nets[spec] = net
+        rows = _network_rows(net, batch.inputs, repeats, device)
+        best_row = min(rows, key=lambda r: r[1])
+        full = ext_med + best_row[1]
+        results[spec] = {
+            'label': label, 'mmac_per_tile': net.flops() / 1e6,
+            'network_s': {name: med for name, med, _ in rows},
+            'ms_per_tile': {name: med / n * 1e3 for name, med, _ in rows},
+            'best': best_row[0], 'map_s': full}
+        print(f'\n{label}, {net.flops() / 1e6:.0f} MMAC per tile, on {device}:')
+        print(f'  {"mode":<28} {"s / 400 tiles":>14} {"(best)":>8} {"ms / tile":>10}')
+        for name, med, best in rows:
+            print(f'  {name:<28} {med:>14.3f} {best:>8.3f} {med / n * 1e3:>10.2f}')
+        verdict = ('met' if full <= TARGET_MAP_S else 'NOT met')
+        print(f'  full map (extraction + {best_row[0]}): {full:.2f} s; target <= '
+              f'{TARGET_MAP_S:.0f} s {verdict}; aim {AIM_MAP_S} s; ms per tile '
+              f'{best_row[1] / n * 1e3:.2f} (target <= {TARGET_MS_PER_TILE:.0f})')
+
+    # steady state: a sensor sweeps a strip; only the tiles its rays touched are re-assessed
+    dmap.pop_dirty()
+    pts = make_batches(1, seed + 1000, batch=70_000)[0]
+    strip = pts[(pts[:, 0] >= 2.0) & (pts[:, 0] < 5.0)]
+    dmap.integrate(strip, SENSOR)
+    dirty = dmap.pop_dirty()
+    # inputs reach one tile into the neighbours (padding), so their inputs changed too
+    wide = widen_tiles(dirty)
+    known = {tuple(k) for k in batch.index.tolist()}
+    wide = np.array([k for k in wide.tolist() if tuple(k) in known], np.int64).reshape(-1, 2)
+    results['dirty'] = {'returns': int(len(strip)), 'dirty_tiles': int(len(dirty)),
+                        'tiles': int(len(wide))}
+    print(f'\nre-assess after {len(strip):,} returns on a 3 m strip (x in [2, 5) m): '
+          f'{len(dirty)} dirty tiles, {len(wide)} with their neighbours:')
+    for spec, net in nets.items():
+        mode = results[spec]['best']
+        prec, cl = mode.split()[0], 'channels-last' in mode
+
+        predictor = Predictor(net)
+
+        def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl) -> None:
+            sub = extract_tiles(dmap, tcfg, wide, buffers=buffers)
+            predictor(sub.inputs, 256, prec, channels_last=cl)
+
+        med, best = _times(update, repeats)
+        predictor.close()
+        results['dirty'][spec] = med
+        print(f'  {spec}: {med:.3f} s ({best:.3f}) against {results[spec]["map_s"]:.3f} s '
+              'for the whole map')
+
+    # training and data, for reference
+    print('\ntraining step, batch 20, forward + backward + SGD, channels-last:')
+    results['train_ms_per_sample'] = {}
+    for spec in (DEFAULT_SPEC, PAPER_SPEC):
+        for prec in (['fp32', 'bf16'] if bf16_supported() else ['fp32']):
+            med, best = _train_step_ms(spec, prec)
+            results['train_ms_per_sample'][f'{spec} {prec}'] = med
+            print(f'  {spec} {prec}: {med:.1f} ms per sample ({best:.1f})')
+    if not bf16_supported():
+        print('  bf16 skipped: no native bf16 on this CPU (it would fall back to slow kernels)')
+    pts = make_batches(1, seed + 2000, batch=26_000, half=2.5)[0]
+    voxelizer = PatchVoxelizer()
+    med, best = _times(lambda: voxelizer(pts, SENSOR, yaw=0.4, z_shift=0.1), 5)
+    results['pipeline_samples_per_s'] = 1.0 / med
+    print(f'data pipeline (re-voxelize a 26k-return patch, one process): {1 / med:.0f} '
+          f'samples/s ({1 / best:.0f})')
+    return results

@@ -1,0 +1,1 @@
+"""Files: ROS bags (rosbags)."""

@@ -1,0 +1,1 @@
+"""Counts -> judgements: tiles and their ground, the safety CNN, landing sites (onboard)."""

@@ -1,0 +1,431 @@
+"""Map -> tiles: per-tile ground height and the padded subvolumes the network reads.
+
+The XY plane is cut on the global tile lattice (tile ``k = floor(x / tile_size)``, centre
+``(k + 0.5) * tile_size``; with 5 cm voxels a 1 m tile is 20 voxels and tile ``k`` covers voxels
+``[20 k, 20 k + 20)``). For every tile:
+
+1. **Ground.** For each of its voxel columns the lowest *occupied* voxel (hit at least once,
+   density at least ``TileConfig.occupied_density``) is that column's candidate ground; the
+   tile's ground is the ``ground_quantile`` (default 5 %) of those column minima. Taking one
+   value per column keeps grass (many occupied voxels above the ground) from outvoting the few
+   columns where the ground shows through, and the low quantile ignores a few columns with
+   noise below the ground.
+2. **Cube.** A ``tile_size``-high cube sits on the tile with the ground voxel at its vertical
+   middle (index ``tile_vox // 2``); ``padding`` voxels of context are added on every side
+   (20 + 2 * 6 = 32 at the defaults) and read as the network input ``x = 2 * density - 1 =
+   (hits - passes) / (hits + passes + 2)``: unobserved voxels (and voxels outside the map) are 0,
+   occupied ones positive, free ones negative.
+3. **Validity.** A tile is judged only if it has a ground estimate, at least
+   ``min_observed_fraction`` of its (unpadded) cube was observed and at least ``min_returns``
+   returns fell into its column; other tiles are marked not valid (unknown), never guessed.
+
+The core, :func:`tiles_from_counts`, works on plain count arrays so grids can be built by hand;
+:func:`extract_tiles` reads them from a :class:`~landing_zone.mapping.density_map.DensityMap` and
+:func:`scene_to_input` re-voxelizes one simulated patch exactly as the deployed map would, so the
+network is trained on what it will see.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numba as nb
+import numpy as np
+from numpy.typing import ArrayLike
+
+from landing_zone.config import MapConfig, TileConfig
+from landing_zone.errors import ConfigError
+
+if TYPE_CHECKING:
+    from landing_zone.mapping.density_map import DensityMap
+
+__all__ = [
+    'TileBatch',
+    'tile_voxels',
+    'tiles_in_box',
+    'widen_tiles',
+    'tiles_from_counts',
+    'extract_tiles',
+    'scene_to_input',
+    'CountBuffers',
+    'PatchVoxelizer',
+    'PATCH_Z_MARGIN',
+]
+
+# Extra height [m] the patch map of scene_to_input keeps above and below the cube's reach, for
+# ground that is not exactly at z = 0 (slopes, bumps) in a simulated patch.
+PATCH_Z_MARGIN = 0.5
+
+
+@dataclass
+class TileBatch:
+    """Tiles and their network inputs (T tiles; S = tile voxels + 2 * padding).
+
+    Attributes:
+        index: (T, 2) int64 global tile indices (kx, ky).
+        centers: (T, 2) float64 tile centres [m].
+        ground_z: (T,) float64 estimated ground height [m] (centre of the ground voxel); NaN
+            where no occupied voxel was found.
+        inputs: (T, 1, S, S, S) float32 network inputs in [-1, 1], axes (x, y, z).
+        cube_lo: (T, 3) int64 global voxel index of each input's lower corner (padding
+            included), so input voxel (a, b, c) is lattice voxel ``cube_lo + (a, b, c)``.
+        observed_fraction: (T,) float32 share of the unpadded cube hit or passed at least once.
+        n_returns: (T,) int64 hits in the tile's column (the whole height read).
+        valid: (T,) bool, the tile may be judged (see the module docstring).
+    """
+
+    index: np.ndarray
+    centers: np.ndarray
+    ground_z: np.ndarray
+    inputs: np.ndarray
+    cube_lo: np.ndarray
+    observed_fraction: np.ndarray
+    n_returns: np.ndarray
+    valid: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.index.shape[0])
+
+
+def tile_voxels(voxel_size: float, config: TileConfig) -> int:
+    """Voxels along one side of a tile; the tile must be a whole number of voxels.
+
+    Raises:
+        ConfigError: the tile size is not a whole multiple of the voxel size.
+    """
+    config.validate()
+    if not (math.isfinite(voxel_size) and voxel_size > 0):
+        raise ConfigError(f'voxel_size must be a positive number, got {voxel_size!r}')
+    ratio = config.tile_size / voxel_size
+    tv = int(round(ratio))
+    if tv < 1 or abs(ratio - tv) > 1e-6:
+        raise ConfigError(f'tiles.tile_size ({config.tile_size}) must be a whole multiple of '
+                          f'the voxel size ({voxel_size})')
+    return tv
+
+
+def tiles_in_box(lo: ArrayLike, shape: ArrayLike, tile_vox: int) -> np.ndarray:
+    """Global indices of the tiles whose XY footprint lies wholly inside a voxel box.
+
+    Args:
+        lo: global voxel index of the box's lower corner (x, y[, z]).
+        shape: voxels of the box (x, y[, z]).
+        tile_vox: voxels per tile side.
+
+    Returns:
+        (T, 2) int64, ordered by x then y.
+    """
+    lo_xy = np.asarray(lo, np.int64).reshape(-1)[:2]
+    k0 = -(-lo_xy // tile_vox)  # ceil
+    k1 = (lo_xy + np.asarray(shape, np.int64).reshape(-1)[:2]) // tile_vox
+    kx = np.arange(k0[0], max(k1[0], k0[0]), dtype=np.int64)
+    ky = np.arange(k0[1], max(k1[1], k0[1]), dtype=np.int64)
+    gx, gy = np.meshgrid(kx, ky, indexing='ij')
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
+    """The tiles and their neighbours up to ``rings`` tiles away (sorted, unique).
+
+    A tile's input reaches ``padding`` voxels into its neighbours, so when the voxels of some
+    tiles change (the map's dirty tiles), the inputs of their neighbours change too.
+
+    Args:
+        tiles: (T, 2) integer tile indices.
+        rings: how many tiles out to add (1 covers any padding up to a whole tile).
+    """
+    idx = _as_tiles(tiles)
+    r = np.arange(-rings, rings + 1)
+    ring = np.stack(np.meshgrid(r, r, indexing='ij'), axis=-1).reshape(-1, 2)
+    return np.unique((idx[:, None, :] + ring[None]).reshape(-1, 2), axis=0)
+
+
+# --- the compiled kernel -----------------------------------------------------------------------
+
+def _tile_kernel(  # type: ignore[no-untyped-def]
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, out, ground_k, nobs, nret):
+    """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
+
+    ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
+    has no occupied voxel (its input is then all zeros).
+    """
+    nx, ny, nz = hits.shape
+    side = tv + 2 * pad
+    half = tv // 2
+    for t in nb.prange(tiles.shape[0]):
+        x0 = tiles[t, 0] * tv - lo[0]
+        y0 = tiles[t, 1] * tv - lo[1]
+        colmin = np.empty(tv * tv, np.int64)
+        n = 0
+        returns = 0
+        for i in range(tv):
+            xi = x0 + i
+            if xi < 0 or xi >= nx:
+                continue
+            for j in range(tv):
+                yj = y0 + j
+                if yj < 0 or yj >= ny:
+                    continue
+                found = False
+                for k in range(nz):
+                    h = hits[xi, yj, k]
+                    returns += h
+                    if not found and h > 0:
+                        # occupied: hit at least once and density at least the threshold
+                        hf = np.float64(h)
+                        if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
+                            colmin[n] = k
+                            n += 1
+                            found = True
+        nret[t] = returns
+        if n == 0:
+            ground_k[t] = -(2 ** 62)
+            nobs[t] = 0
+            out[t, 0] = 0.0
+            continue
+        mins = np.sort(colmin[:n])
+        kq = mins[int(math.floor(quantile * (n - 1)))]
+        ground_k[t] = kq
+        z0 = kq - half - pad
+        # the input's z range that lies inside the box; the rest reads as unobserved
+        c0 = min(max(-z0, 0), side)
+        c1 = max(min(nz - z0, side), c0)
+        seen = 0
+        for a in range(side):
+            xi = x0 - pad + a
+            for b in range(side):
+                yj = y0 - pad + b
+                row = out[t, 0, a, b]
+                if xi < 0 or xi >= nx or yj < 0 or yj >= ny:
+                    row[:] = 0.0
+                    continue
+                row[:c0] = 0.0
+                row[c1:] = 0.0
+                # branch-free so the compiler vectorizes it
+                for c in range(c0, c1):
+                    h = np.float32(hits[xi, yj, z0 + c])
+                    p = np.float32(passes[xi, yj, z0 + c])
+                    row[c] = (h - p) / (h + p + np.float32(2.0))
+                if pad <= a < pad + tv and pad <= b < pad + tv:
+                    for c in range(max(c0, pad), min(c1, pad + tv)):
+                        seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
+        nobs[t] = seen
+
+
+# Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
+# costs more than the work and where DataLoader workers must not start one (see train.py).
+_tile_kernel_parallel = nb.njit(cache=True, parallel=True)(_tile_kernel)
+_tile_kernel_serial = nb.njit(cache=True)(_tile_kernel)
+_SERIAL_TILES = 4
+
+
+# --- public API --------------------------------------------------------------------------------
+
+def _as_tiles(tiles: ArrayLike) -> np.ndarray:
+    arr = np.asarray(tiles)
+    if arr.ndim != 2 or arr.shape[1] != 2 or (arr.size and arr.dtype.kind not in 'iu'):
+        raise ConfigError(f'tiles must be a (T, 2) integer array of tile indices, got shape '
+                          f'{arr.shape} dtype {arr.dtype}')
+    return np.ascontiguousarray(arr, np.int64)
+
+
+def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
+                      voxel_size: float, config: TileConfig | None = None,
+                      tiles: np.ndarray | None = None) -> TileBatch:
+    """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
+
+    Args:
+        hits: (X, Y, Z) non-negative integer counts of a box of the global voxel lattice, in
+            (x, y, z) order (as :meth:`DensityMap.counts` returns them).
+        passes: same shape, the pass counts.
+        lo: (3,) global voxel index of the box's lower corner.
+        voxel_size: edge of a voxel [m].
+        config: tiling parameters; default :class:`TileConfig()`.
+        tiles: (T, 2) global tile indices to extract; default every tile whose footprint lies
+            wholly inside the box. Voxels outside the box read as unobserved.
+
+    Returns:
+        A :class:`TileBatch` of the tiles in the order given (x then y by default).
+
+    Raises:
+        ConfigError: inconsistent shapes or parameters.
+    """
+    cfg = config if config is not None else TileConfig()
+    tv = tile_voxels(voxel_size, cfg)
+    h = np.asarray(hits)
+    p = np.asarray(passes)
+    if h.ndim != 3 or h.shape != p.shape:
+        raise ConfigError(f'hits and passes must be 3-D arrays of one shape, got {h.shape} '
+                          f'and {p.shape}')
+    if h.dtype.kind not in 'iu' or p.dtype.kind not in 'iu':
+        raise ConfigError(f'hits and passes must be integer counts, got {h.dtype} and {p.dtype}')
+    lo_arr = np.asarray(lo).reshape(-1)
+    if lo_arr.shape != (3,) or lo_arr.dtype.kind not in 'iu':
+        raise ConfigError(f'lo must be three integers, got {lo!r}')
+    lo_arr = lo_arr.astype(np.int64)
+    idx = tiles_in_box(lo_arr, h.shape, tv) if tiles is None else _as_tiles(tiles)
+    side = tv + 2 * cfg.padding
+    n = idx.shape[0]
+    inputs = np.empty((n, 1, side, side, side), np.float32)
+    ground_k = np.empty(n, np.int64)
+    nobs = np.empty(n, np.int64)
+    nret = np.empty(n, np.int64)
+    if n:
+        # Counts are non-negative; uint32 keeps the kernel to one compiled signature.
+        kernel = _tile_kernel_serial if n <= _SERIAL_TILES else _tile_kernel_parallel
+        kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
+               lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
+               float(cfg.occupied_density), inputs, ground_k, nobs, nret)
+    has_ground = ground_k > -(2 ** 62)
+    gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
+    ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)
+    cube_lo = np.column_stack([idx * tv - cfg.padding,
+                               gk - tv // 2 - cfg.padding]).astype(np.int64)
+    observed_fraction = (nobs / float(tv ** 3)).astype(np.float32)
+    valid = (has_ground & (observed_fraction >= cfg.min_observed_fraction)
+             & (nret >= cfg.min_returns))
+    return TileBatch(index=idx, centers=(idx + 0.5) * cfg.tile_size, ground_z=ground_z,
+                     inputs=inputs, cube_lo=cube_lo, observed_fraction=observed_fraction,
+                     n_returns=nret, valid=valid)
+
+
+class CountBuffers:
+    """The hit and pass arrays one caller reads a map's counts into, reused while the box keeps
+    its shape: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read.
+    Not thread-safe: one per thread."""
+
+    def __init__(self) -> None:
+        self._bufs: tuple[np.ndarray, np.ndarray] | None = None
+
+    def get(self, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """Two uint32 arrays of ``shape`` (the same ones as last time if it is unchanged)."""
+        if self._bufs is None or self._bufs[0].shape != shape:
+            self._bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
+        return self._bufs
+
+
+def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
+                  tiles: np.ndarray | None = None,
+                  buffers: CountBuffers | None = None) -> TileBatch:
+    """Tiles of a density map (see :func:`tiles_from_counts`).
+
+    Only the counts of the bounding box of the requested tiles (padding included, clipped to
+    the map's window) are read, so re-assessing a few dirty tiles reads little. Into
+    ``buffers`` when given (a caller that extracts again and again), else into fresh arrays.
+
+    Args:
+        dmap: the map.
+        config: tiling parameters; default :class:`TileConfig()`.
+        tiles: (T, 2) global tile indices; default every tile wholly inside the window.
+    """
+    cfg = config if config is not None else TileConfig()
+    tv = tile_voxels(dmap.voxel_size, cfg)
+    lo = np.asarray(dmap.lo, np.int64)
+    hi = lo + np.asarray(dmap.shape, np.int64)
+    idx = tiles_in_box(lo, dmap.shape, tv) if tiles is None else _as_tiles(tiles)
+    if idx.shape[0] == 0:
+        return tiles_from_counts(np.zeros((0, 0, 0), np.uint32), np.zeros((0, 0, 0), np.uint32),
+                                 lo, dmap.voxel_size, cfg, idx)
+    box_lo = np.concatenate([idx.min(axis=0) * tv - cfg.padding, lo[2:]])
+    box_hi = np.concatenate([(idx.max(axis=0) + 1) * tv + cfg.padding, hi[2:]])
+    box_lo = np.clip(box_lo, lo, hi)
+    box_hi = np.clip(box_hi, box_lo, hi)
+    sx, sy, sz = (int(v) for v in box_hi - box_lo)
+    bufs = buffers.get((sx, sy, sz)) if buffers is not None else None
+    h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
+    return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx)
+
+
+class PatchVoxelizer:
+    """Re-voxelizes simulated patches (:func:`scene_to_input`) into small maps it owns.
+
+    One 3 x 3-tile map per voxel size and height, cleared and reused across patches, because
+    building one costs as much as a fifth of integrating a patch. Not thread-safe: one per
+    thread or process (a training set makes its own in each loader worker).
+    """
+
+    def __init__(self) -> None:
+        self._maps: dict[tuple[float, int, int], DensityMap] = {}
+
+    def _map(self, voxel_size: float, tile_vox: int, nz: int) -> DensityMap:
+        from landing_zone.mapping.density_map import DensityMap
+
+        key = (voxel_size, tile_vox, nz)
+        dmap = self._maps.get(key)
+        if dmap is None:
+            cfg = MapConfig(voxel_size=voxel_size, size_xy=3 * tile_vox * voxel_size,
+                            size_z=nz * voxel_size, z_below=0.0, recenter_distance=0.0)
+            # one patch is too small to be worth the map's two-thread split
+            dmap = DensityMap(cfg, parallel=False, tile_vox=tile_vox)
+            self._maps[key] = dmap
+        else:
+            dmap.clear()
+        return dmap
+
+    def __call__(self, points: np.ndarray, origins: np.ndarray,
+                 map_cfg: MapConfig | None = None, tile_cfg: TileConfig | None = None,
+                 yaw: float = 0.0, z_shift: float = 0.0) -> TileBatch:
+        """:func:`scene_to_input` on this voxelizer's maps."""
+        return scene_to_input(points, origins, map_cfg, tile_cfg, yaw, z_shift, voxelizer=self)
+
+
+def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
+                   tile_cfg: TileConfig | None = None, yaw: float = 0.0,
+                   z_shift: float = 0.0, voxelizer: PatchVoxelizer | None = None) -> TileBatch:
+    """Re-voxelize one simulated patch and extract its centre tile, as the deployed map would.
+
+    The patch frame has the tile centred at (0, 0) with the ground near z = 0. Points and
+    origins are rotated by ``yaw`` about the z axis through the tile centre, raised by
+    ``z_shift``, moved by half a tile in x and y onto global tile (0, 0), integrated into a
+    small density map of 3 x 3 tiles (so the padding sees real neighbours), and tile (0, 0) is
+    extracted with :func:`tiles_from_counts`.
+
+    Args:
+        points: (N, 3) returns in the patch frame [m].
+        origins: (3,) or (N, 3) sensor origins of the returns [m].
+        map_cfg: voxel size of the map (only ``voxel_size`` is used); default MapConfig().
+        tile_cfg: tiling parameters; default TileConfig().
+        yaw: rotation about the tile's vertical axis [rad] (augmentation).
+        z_shift: vertical shift [m] (augmentation).
+        voxelizer: whose small map to reuse (callers that voxelize many patches); default a
+            fresh map.
+
+    Returns:
+        A :class:`TileBatch` with one tile; ``index`` is (0, 0), ``centers`` (0, 0) and
+        ``ground_z`` is in the patch frame (the shift undone).
+
+    Raises:
+        InvalidCloudError: malformed points or origins.
+        ConfigError: bad configuration or non-finite yaw / z_shift.
+    """
+    mcfg = map_cfg if map_cfg is not None else MapConfig()
+    tcfg = tile_cfg if tile_cfg is not None else TileConfig()
+    if not (math.isfinite(yaw) and math.isfinite(z_shift)):
+        raise ConfigError(f'yaw and z_shift must be finite, got {yaw!r} and {z_shift!r}')
+    vs = float(mcfg.voxel_size)
+    tv = tile_voxels(vs, tcfg)
+    # Vertical reach: the cube (one tile high around the ground), its padding and a margin for
+    # ground that is off z = 0; the window moves with z_shift so its size (and the cached map)
+    # stays the same. Rays outside the window cannot change the extracted cube.
+    reach = tcfg.tile_size / 2 + (tcfg.padding + 1) * vs + PATCH_Z_MARGIN
+    kz = int(math.ceil(reach / vs))
+    dmap = (voxelizer if voxelizer is not None else PatchVoxelizer())._map(vs, tv, 2 * kz)
+    dmap.set_lo(np.array([-tv, -tv, -kz + int(round(z_shift / vs))], np.int64))
+    c, s = math.cos(yaw), math.sin(yaw)
+    offset = np.array([tcfg.tile_size / 2, tcfg.tile_size / 2, z_shift])
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+    def place(a: np.ndarray) -> np.ndarray:
+        arr = np.asarray(a, np.float64)
+        if arr.ndim == 0 or arr.shape[-1] != 3:
+            return arr  # let DensityMap.integrate name the problem
+        placed: np.ndarray = arr @ rot.T + offset
+        return placed
+
+    dmap.integrate(place(points), place(origins))
+    h, p = dmap.counts()
+    batch = tiles_from_counts(h, p, dmap.lo, vs, tcfg, np.zeros((1, 2), np.int64))
+    batch.centers = np.zeros((1, 2))
+    batch.ground_z = batch.ground_z - z_shift
+    return batch

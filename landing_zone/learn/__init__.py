@@ -1,0 +1,1 @@
+"""Offline learning: training, evaluation, architecture search, calibration, baselines."""

@@ -1,0 +1,1 @@
+"""Rays -> counts: the compiled ray traversal and the scrolling density map (onboard)."""
