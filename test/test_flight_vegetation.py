@@ -134,7 +134,7 @@ def test_defaults_are_what_they_were_before_the_options(tmp_path):
     assert [ob['x'], ob['y'], ob['yaw']] == pytest.approx([-0.6106, -0.4069, 2.8655], abs=2e-4)
     assert ob['size'] == pytest.approx([0.2721, 0.2683, 0.17], abs=2e-4)
     pts, lab, _ = _load(r.bag)
-    from landing_zone.bagio import read_messages
+    from landing_zone.io.bags import read_messages
     topics = [m.topic for m in read_messages(r.bag)]
     assert topics.count('/lidar/points') == topics.count('/lidar/pose') == 17
     counts = np.bincount(lab, minlength=3)
