@@ -19,6 +19,7 @@ __all__ = [
     'TileConfig',
     'ModelConfig',
     'SiteConfig',
+    'GuardConfig',
     'AssessorConfig',
 ]
 
@@ -122,6 +123,43 @@ class SiteConfig:
 
 
 @dataclass
+class GuardConfig:
+    """The guard beside the network: opaque structure above the ground (landing_zone.guard)."""
+
+    enabled: bool = True  # cap P(safe) where the guard fires
+    min_height: float = 0.12  # solid voxels count from this far above the tile's ground [m]
+    max_height: float = 1.5  # ... up to this height [m]
+    min_hits: int = 3  # a solid voxel holds at least this many returns ...
+    min_hit_ratio: float = 0.3  # ... and at least this share of the rays reaching it ended there
+    # ... and it shadows the voxel beneath: of the rays ending in it or crossing that voxel,
+    # at most this share crossed (inside a solid nothing does; under grass most rays go on)
+    max_pass_below: float = 0.2
+    min_cluster_hits: int = 16  # the guard fires on a connected cluster with this many returns
+    margin: float = 0.2  # clusters are traced this far beyond the tile's edges [m]
+    max_p_safe: float = 0.05  # P(safe) of a tile where the guard fires is at most this
+
+    def validate(self) -> None:
+        _nonnegative('guard.min_height', self.min_height)
+        if not self.max_height > self.min_height:
+            raise ConfigError(f'guard.max_height ({self.max_height}) must exceed '
+                              f'guard.min_height ({self.min_height})')
+        if self.min_hits < 1:
+            raise ConfigError(f'guard.min_hits must be >= 1, got {self.min_hits}')
+        if not 0.0 < self.min_hit_ratio <= 1.0:
+            raise ConfigError(f'guard.min_hit_ratio must lie in (0, 1], got '
+                              f'{self.min_hit_ratio}')
+        if not 0.0 <= self.max_pass_below <= 1.0:
+            raise ConfigError(f'guard.max_pass_below must lie in [0, 1], got '
+                              f'{self.max_pass_below}')
+        if self.min_cluster_hits < 1:
+            raise ConfigError(f'guard.min_cluster_hits must be >= 1, got '
+                              f'{self.min_cluster_hits}')
+        _nonnegative('guard.margin', self.margin)
+        if not 0.0 <= self.max_p_safe <= 1.0:
+            raise ConfigError(f'guard.max_p_safe must lie in [0, 1], got {self.max_p_safe}')
+
+
+@dataclass
 class AssessorConfig:
     """The whole pipeline; the defaults are those of the node (docs/INTERFACES.md §1)."""
 
@@ -132,6 +170,7 @@ class AssessorConfig:
     tiles: TileConfig = field(default_factory=TileConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     landing_sites: SiteConfig = field(default_factory=SiteConfig)
+    guard: GuardConfig = field(default_factory=GuardConfig)
 
     def validate(self) -> None:
         if not self.frame_id:
@@ -143,6 +182,7 @@ class AssessorConfig:
         self.tiles.validate()
         self.model.validate()
         self.landing_sites.validate()
+        self.guard.validate()
         ratio = self.map.size_xy / self.tiles.tile_size
         if ratio < 1 or abs(ratio - round(ratio)) > 1e-6:
             raise ConfigError(f'map.size_xy ({self.map.size_xy}) must be a whole multiple of '
@@ -155,7 +195,7 @@ class AssessorConfig:
     def to_flat(self) -> dict[str, Any]:
         """Dotted names -> values, as the node's parameters and the YAML file spell them."""
         flat: dict[str, Any] = {'frame_id': self.frame_id}
-        for section in ('map', 'tiles', 'model', 'landing_sites'):
+        for section in _SECTIONS:
             for f in dataclasses.fields(getattr(self, section)):
                 flat[f'{section}.{f.name}'] = getattr(getattr(self, section), f.name)
         return flat
@@ -172,14 +212,17 @@ class AssessorConfig:
                 cfg.center = None if value is None else (float(value[0]), float(value[1]))
                 continue
             section, _, name = key.partition('.')
-            sub = getattr(cfg, section, None) if section in (
-                'map', 'tiles', 'model', 'landing_sites') else None
+            sub = getattr(cfg, section, None) if section in _SECTIONS else None
             if sub is None or name not in {f.name for f in dataclasses.fields(sub)}:
                 raise ConfigError(f'unknown configuration key {key!r}')
             current = getattr(sub, name)
             setattr(sub, name, type(current)(value))
         cfg.validate()
         return cfg
+
+
+# The sections of AssessorConfig, as the dotted names' prefixes.
+_SECTIONS = ('map', 'tiles', 'model', 'landing_sites', 'guard')
 
 
 def _positive(name: str, value: float) -> None:

@@ -84,6 +84,22 @@ PARAMETERS: dict[str, tuple[str, tuple[float, float] | None, bool]] = {
     'landing_sites.top_k': ('Landing-site candidates published, best first.', (0, 100), False),
     'landing_sites.min_p_safe': ('Candidates below this P(all tiles safe) are left out.',
                                  (0.0, 1.0), False),
+    'guard.enabled': ('Cap P(safe) where opaque structure stands above the ground.', None,
+                      False),
+    'guard.min_height': ('Solid voxels count from this far above the tile\'s ground [m].',
+                         (0.0, 2.0), False),
+    'guard.max_height': ('... up to this height above the ground [m].', (0.05, 4.0), False),
+    'guard.min_hits': ('Returns a solid voxel holds at least.', (1, 1000), False),
+    'guard.min_hit_ratio': ('Share of the rays reaching a solid voxel that end in it, at least.',
+                            (0.01, 1.0), False),
+    'guard.max_pass_below': ('Share of the rays that cross the voxel beneath a solid one, at '
+                             'most.', (0.0, 1.0), False),
+    'guard.min_cluster_hits': ('Returns on a connected solid cluster for the guard to fire.',
+                               (1, 100_000), False),
+    'guard.margin': ('Clusters are traced this far beyond the tile\'s edges [m].', (0.0, 1.0),
+                     False),
+    'guard.max_p_safe': ('P(safe) of a tile where the guard fires is at most this.', (0.0, 1.0),
+                         False),
     'assessment_period': ('Stamp time between assessments [s].', (0.01, 60.0), False),
     'pose_tolerance': ('How far a cloud may lie outside the poses\' span [s].', (0.0, 10.0),
                        False),
@@ -224,7 +240,7 @@ class AssessorNode(Node):
         config, stream_config, rest = configs_from_flat(self._flat())
         a = self.assessor
         # only writable parameters get here; copy every section mechanically
-        for section in ('map', 'tiles', 'model', 'landing_sites'):
+        for section in ('map', 'tiles', 'model', 'landing_sites', 'guard'):
             live, new = getattr(a.config, section), getattr(config, section)
             for name, value in vars(new).items():
                 setattr(live, name, value)
@@ -232,7 +248,7 @@ class AssessorNode(Node):
             setattr(self.stream.config, name, value)
         self.stream.poses_buffer.tolerance_ns = int(round(stream_config.pose_tolerance * NS))
         self.settings.update(rest)
-        if any(p.name.startswith('tiles.') for p in params):
+        if any(p.name.startswith(('tiles.', 'guard.')) for p in params):
             a.invalidate()  # every tile is judged again under the new thresholds
         self.get_logger().info('parameters changed: ' + ', '.join(
             f'{p.name}={p.value}' for p in params))
