@@ -129,11 +129,11 @@ class GuardConfig:
     enabled: bool = True  # cap P(safe) where the guard fires
     min_height: float = 0.12  # solid voxels count from this far above the tile's ground [m]
     max_height: float = 1.5  # ... up to this height [m]
-    min_hits: int = 3  # a solid voxel holds at least this many returns ...
+    min_hits: int = 2  # a solid voxel holds at least this many returns ...
     min_hit_ratio: float = 0.3  # ... and at least this share of the rays reaching it ended there
     # ... and it shadows the voxel beneath: of the rays ending in it or crossing that voxel,
     # at most this share crossed (inside a solid nothing does; under grass most rays go on)
-    max_pass_below: float = 0.2
+    max_pass_below: float = 0.15
     min_cluster_hits: int = 16  # the guard fires on a connected cluster with this many returns
     margin: float = 0.2  # clusters are traced this far beyond the tile's edges [m]
     max_p_safe: float = 0.05  # P(safe) of a tile where the guard fires is at most this
