@@ -130,11 +130,12 @@ class GuardConfig:
     min_height: float = 0.12  # solid voxels count from this far above the tile's ground [m]
     max_height: float = 1.5  # ... up to this height [m]
     min_hits: int = 2  # a solid voxel holds at least this many returns ...
-    min_hit_ratio: float = 0.3  # ... and at least this share of the rays reaching it ended there
-    # ... and it shadows the voxel beneath: of the rays ending in it or crossing that voxel,
-    # at most this share crossed (inside a solid nothing does; under grass most rays go on)
-    max_pass_below: float = 0.15
-    min_cluster_hits: int = 16  # the guard fires on a connected cluster with this many returns
+    min_hit_ratio: float = 0.4  # ... and at least this share of the rays reaching it ended there
+    # ... and it casts a shadow: of the rays ending in it or crossing the least crossed voxel
+    # beneath or beside it, at most this share crossed (behind a solid no ray gets; under grass
+    # most go on)
+    max_pass_behind: float = 0.1
+    min_cluster_hits: int = 20  # the guard fires on a connected cluster with this many returns
     margin: float = 0.2  # clusters are traced this far beyond the tile's edges [m]
     max_p_safe: float = 0.05  # P(safe) of a tile where the guard fires is at most this
 
@@ -148,9 +149,9 @@ class GuardConfig:
         if not 0.0 < self.min_hit_ratio <= 1.0:
             raise ConfigError(f'guard.min_hit_ratio must lie in (0, 1], got '
                               f'{self.min_hit_ratio}')
-        if not 0.0 <= self.max_pass_below <= 1.0:
-            raise ConfigError(f'guard.max_pass_below must lie in [0, 1], got '
-                              f'{self.max_pass_below}')
+        if not 0.0 <= self.max_pass_behind <= 1.0:
+            raise ConfigError(f'guard.max_pass_behind must lie in [0, 1], got '
+                              f'{self.max_pass_behind}')
         if self.min_cluster_hits < 1:
             raise ConfigError(f'guard.min_cluster_hits must be >= 1, got '
                               f'{self.min_cluster_hits}')

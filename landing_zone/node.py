@@ -92,8 +92,8 @@ PARAMETERS: dict[str, tuple[str, tuple[float, float] | None, bool]] = {
     'guard.min_hits': ('Returns a solid voxel holds at least.', (1, 1000), False),
     'guard.min_hit_ratio': ('Share of the rays reaching a solid voxel that end in it, at least.',
                             (0.01, 1.0), False),
-    'guard.max_pass_below': ('Share of the rays that cross the voxel beneath a solid one, at '
-                             'most.', (0.0, 1.0), False),
+    'guard.max_pass_behind': ('Share of the rays that cross the least crossed voxel beneath or '
+                              'beside a solid one, at most.', (0.0, 1.0), False),
     'guard.min_cluster_hits': ('Returns on a connected solid cluster for the guard to fire.',
                                (1, 100_000), False),
     'guard.margin': ('Clusters are traced this far beyond the tile\'s edges [m].', (0.0, 1.0),

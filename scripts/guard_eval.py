@@ -35,6 +35,7 @@ import json
 import math
 import sys
 import time
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -201,7 +202,9 @@ def run_flight(work: Path, name: str, seed: int) -> dict[str, Any]:
     if n_shapes:
         doc = json.loads(labels.read_text())
         taken = [np.array([o['x'], o['y']]) for o in doc['obstacles']]
-        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x5AFE]))
+        # shapes of their own per condition and seed (the ground and the flight noise of one
+        # seed are the same whatever the vegetation)
+        rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(name.encode())]))
         shapes = place_shapes(read_flight(bag).points, n_shapes, taken, rng)
         inserted = work / f'{name}_{seed}_h.mcap'
         insert_obstacles(bag, inserted, obstacles=shapes, seed=seed, overwrite=True)
@@ -209,15 +212,18 @@ def run_flight(work: Path, name: str, seed: int) -> dict[str, Any]:
         bag, labels = inserted, inserted.with_suffix('.labels.json')
     res = replay(bag, center=(0.0, 0.0), progress=False)
     a = res.assessment
-    truth = {(round(t['x'], 3), round(t['y'], 3)): bool(t['safe'])
-             for t in json.loads(labels.read_text())['tiles']}
+    doc = json.loads(labels.read_text())
+    truth = {(round(t['x'], 3), round(t['y'], 3)): bool(t['safe']) for t in doc['tiles']}
+    kinds, centres = _obstacle_tiles(doc['obstacles'])
     tiles = []
     for k, (x, y) in enumerate(a.centers.tolist()):
-        safe = truth.get((round(x, 3), round(y, 3)))
-        if safe is None:
+        key = (round(x, 3), round(y, 3))
+        if key not in truth:
             continue
-        tiles.append({'safe': safe, 'p_net': _num(a.p_net[k]), 'p_safe': _num(a.p_safe[k]),
-                      'guard': bool(a.guard[k]), 'guard_hits': int(a.guard_hits[k])})
+        tiles.append({'safe': truth[key], 'p_net': _num(a.p_net[k]),
+                      'p_safe': _num(a.p_safe[k]), 'guard': bool(a.guard[k]),
+                      'guard_hits': int(a.guard_hits[k]), 'kinds': kinds.get(key, []),
+                      'centre': key in centres})
     doc = {'condition': name, 'seed': seed, 'tiles': tiles,
            'obstacles': [o.get('model', o['kind'])
                          for o in json.loads(labels.read_text())['obstacles']],
@@ -225,6 +231,30 @@ def run_flight(work: Path, name: str, seed: int) -> dict[str, Any]:
     result.write_text(json.dumps(doc))
     bag.unlink()  # the figures are kept; the bags are big
     return doc
+
+
+def _obstacle_tiles(obstacles: list[dict[str, Any]]
+                    ) -> tuple[dict[tuple[float, float], list[str]], set[tuple[float, float]]]:
+    """Per tile the kinds of the obstacles over it (a test shape's kind is the first word of
+    its name), and the tiles holding an obstacle's centre."""
+    from landing_zone.sim.flight import polygon_overlaps_square
+
+    kinds: dict[tuple[float, float], list[str]] = {}
+    centres = set()
+    for o in obstacles:
+        kind = str(o.get('model', o['kind'])).split()[0].split('_')[0]
+        c, s = math.cos(o['yaw']), math.sin(o['yaw'])
+        dx, dy = o['size'][0] / 2, o['size'][1] / 2
+        # the footprint's bounding box turned by the yaw: a superset of the footprint, used
+        # only to find the tiles to test against the labels' unsafe ones
+        box = np.array([[o['x'] + c * u - s * v, o['y'] + s * u + c * v]
+                        for u, v in ((-dx, -dy), (dx, -dy), (dx, dy), (-dx, dy))])
+        for kx in range(math.floor(box[:, 0].min()), math.ceil(box[:, 0].max())):
+            for ky in range(math.floor(box[:, 1].min()), math.ceil(box[:, 1].max())):
+                if polygon_overlaps_square(box, np.array([kx, ky]), np.array([kx + 1, ky + 1])):
+                    kinds.setdefault((kx + 0.5, ky + 0.5), []).append(kind)
+        centres.add((math.floor(o['x']) + 0.5, math.floor(o['y']) + 0.5))
+    return kinds, centres
 
 
 def _num(v: float) -> float | None:
@@ -286,6 +316,39 @@ def table(summary: dict[str, dict[str, Any]]) -> str:
     return '\n'.join(rows)
 
 
+def by_kind(docs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Per obstacle kind, over the obstacle tiles it is on: how often the guard fires, and
+    the shares passed at P(safe) >= 0.5 by the network alone and with the guard; the same on
+    the tiles holding the obstacles' centres (where most of an obstacle stands)."""
+    out: dict[str, dict[str, Any]] = {}
+    tiles = [t for d in docs for t in d['tiles'] if not t['safe'] and t['p_net'] is not None]
+    for kind in sorted({k for t in tiles for k in t['kinds']}):
+        row: dict[str, Any] = {}
+        for part, sel in (('all', lambda t: True), ('centre', lambda t: t['centre'])):
+            ts = [t for t in tiles if kind in t['kinds'] and sel(t)]
+            row[part] = {'tiles': len(ts),
+                         'guard_fired': float(np.mean([t['guard'] for t in ts])) if ts else None,
+                         'cnn_ge_0.5': float(np.mean([t['p_net'] >= 0.5 for t in ts]))
+                         if ts else None,
+                         'cnn_guard_ge_0.5': float(np.mean([t['p_safe'] >= 0.5 for t in ts]))
+                         if ts else None}
+        out[kind] = row
+    return out
+
+
+def kind_table(kinds: dict[str, dict[str, Any]]) -> str:
+    rows = ['| obstacle kind | tiles (centre tiles) | guard fires: all / centre | passed at '
+            '>= 0.5, CNN: all / centre | CNN + guard: all / centre |',
+            '|---|---:|---:|---:|---:|']
+    for kind, r in kinds.items():
+        a, c = r['all'], r['centre']
+        rows.append(f'| {kind} | {a["tiles"]} ({c["tiles"]}) | {_pct(a["guard_fired"])} / '
+                    f'{_pct(c["guard_fired"])} | {_pct(a["cnn_ge_0.5"])} / '
+                    f'{_pct(c["cnn_ge_0.5"])} | {_pct(a["cnn_guard_ge_0.5"])} / '
+                    f'{_pct(c["cnn_guard_ge_0.5"])} |')
+    return '\n'.join(rows)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('workdir', type=Path)
@@ -313,7 +376,11 @@ def main() -> int:
         docs = [json.loads((args.workdir / f'{n}_{s}.json').read_text()) for n in obstacle
                 for s in range(args.first_seed, args.first_seed + args.seeds)]
         summary['all with obstacles'] = summarise(docs)
+        summary['all with obstacles']['by_kind'] = by_kind(docs)
     print(table(summary))
+    if obstacle:
+        print()
+        print(kind_table(summary['all with obstacles']['by_kind']))
     if args.json is not None:
         args.json.write_text(json.dumps(summary, indent=1) + '\n')
     return 0
