@@ -71,6 +71,22 @@ def test_a_shadowless_dense_layer_does_not_fire():
     assert not judge(hits, passes).fired.any()
 
 
+def test_a_thin_wall_seen_from_the_side_fires_by_its_shadow_beside_it():
+    hits, passes = ground_box()
+    # a 5 cm thick wall, 25 cm high, 40 cm long, across rays that come from -x: its voxels
+    # end half the rays reaching them, the rest cross them (the wall fills part of a voxel) and
+    # the voxels beneath are wall too, so only the voxels behind it (+x) lie in its shadow
+    x, (y0, y1), (k0, k1) = 8, (4, 12), (11, 16)
+    hits[x, y0:y1, k0:k1] = 10
+    passes[x, y0:y1, k0:k1] = 5
+    hits[x + 1:x + 4, y0:y1, :k1] = 0
+    passes[x + 1:x + 4, y0:y1, :k1] = 0
+    assert judge(hits, passes).fired[0]
+    # the same voxels with the rays going on behind them: grass, not a wall
+    passes[x + 1:x + 4, y0:y1, :k1] = 20
+    assert not judge(hits, passes).fired[0]
+
+
 def test_low_structure_is_below_the_guard():
     hits, passes = ground_box()
     add_block(hits, passes, (4, 12), (5, 12), 11, 13)  # 10 cm high: its top under 12 cm
