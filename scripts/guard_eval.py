@@ -181,8 +181,10 @@ def place_shapes(points: np.ndarray, count: int, taken: list[np.ndarray],
 
 # --- one flight --------------------------------------------------------------------------------
 
-def run_flight(work: Path, name: str, seed: int) -> dict[str, Any]:
-    """Simulate, insert, replay one flight of a condition (cached in ``work``)."""
+def run_flight(work: Path, name: str, seed: int, keep_map: bool = False) -> dict[str, Any]:
+    """Simulate, insert, replay one flight of a condition (cached in ``work``); with
+    ``keep_map`` the final density map goes to ``NAME_SEED.npz`` beside its labels (for
+    ``scripts/ood_eval.py``)."""
     from landing_zone.insert import insert_obstacles, read_flight
     from landing_zone.replay import replay
     from landing_zone.sim.flight import flight_config, simulate_flight
@@ -229,6 +231,9 @@ def run_flight(work: Path, name: str, seed: int) -> dict[str, Any]:
                          for o in json.loads(labels.read_text())['obstacles']],
            'assess_seconds': res.timings['assess'], 'seconds': time.perf_counter() - t0}
     result.write_text(json.dumps(doc))
+    if keep_map:
+        _save_map(bag, a, work / f'{name}_{seed}.npz')
+        (work / f'{name}_{seed}.labels.json').write_text(labels.read_text())
     bag.unlink()  # the figures are kept; the bags are big
     return doc
 
@@ -255,6 +260,23 @@ def _obstacle_tiles(obstacles: list[dict[str, Any]]
                     kinds.setdefault((kx + 0.5, ky + 0.5), []).append(kind)
         centres.add((math.floor(o['x']) + 0.5, math.floor(o['y']) + 0.5))
     return kinds, centres
+
+
+def _save_map(bag: Path, a: Any, out: Path) -> None:
+    """The flight's final map (every return integrated, the map fixed on the site)."""
+    from landing_zone.assessor import Assessor
+    from landing_zone.insert import read_flight
+
+    fl = read_flight(bag)
+    ok = np.isfinite(fl.origins).all(axis=1)
+    first = int(np.flatnonzero(ok)[0])
+    m = Assessor(center=(0.0, 0.0))
+    m.integrate(fl.points[fl.cloud == first], fl.origins[first])  # places the map's height
+    rest = (fl.cloud != first) & ok[fl.cloud]
+    m.map.integrate(fl.points[rest], fl.ray_origins()[rest])
+    hits, passes = m.map.counts()
+    np.savez_compressed(out, hits=hits, passes=passes, lo=m.map.lo, index=a.index,
+                        ground_z=a.ground_z, p_safe=a.p_net)
 
 
 def _num(v: float) -> float | None:
@@ -357,6 +379,8 @@ def main() -> int:
     ap.add_argument('--conditions', default=','.join(CONDITIONS),
                     help='comma separated, from: ' + ', '.join(CONDITIONS))
     ap.add_argument('--json', type=Path, default=None, help='write the figures here')
+    ap.add_argument('--keep-maps', action='store_true',
+                    help='also keep each flight\'s final density map (NAME_SEED.npz)')
     args = ap.parse_args()
     names = [c.strip() for c in args.conditions.split(',') if c.strip()]
     unknown = [c for c in names if c not in CONDITIONS]
@@ -368,7 +392,7 @@ def main() -> int:
     for name in names:
         docs = []
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            docs.append(run_flight(args.workdir, name, seed))
+            docs.append(run_flight(args.workdir, name, seed, args.keep_maps))
             print(f'{name} seed {seed}: {docs[-1]["seconds"]:.0f} s', file=sys.stderr)
         summary[name] = summarise(docs)
     obstacle = [n for n in names if CONDITIONS[n][3] or CONDITIONS[n][2]]
