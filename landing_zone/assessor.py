@@ -15,7 +15,9 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    re-judged; the others keep their results, and tiles that scroll out are forgotten.
 3. **Judgement.** A tile the tiler marks valid (observed enough, see
    :class:`~landing_zone.config.TileConfig`) gets P(safe) from the calibrated network (its
-   checkpoint's temperature); any other tile is unknown (NaN), never guessed safe.
+   checkpoint's temperature); any other tile is unknown (NaN), never guessed safe. Beside the
+   network the guard (:mod:`landing_zone.judging.guard`) caps P(safe) where opaque structure stands
+   above the tile's ground, whatever its shape.
 4. **Confidence** in [0, 1] says how much the judgement rests on observation: the product of
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
@@ -134,6 +136,10 @@ class Assessment:
         stamp: time [s] of the newest cloud integrated before this assessment, if given.
         reassessed: tiles re-extracted in this pass (the others kept their results).
         seconds: wall time of this pass [s].
+        p_net: (T,) float32 the network's own P(safe), before the guard; None: not kept.
+        guard: (T,) bool the guard capped the tile's P(safe) (:mod:`landing_zone.judging.guard`).
+        guard_hits: (T,) int64 returns on the largest solid cluster reaching into the tile.
+        guard_height: (T,) float32 top of that cluster above the ground [m]; NaN: none.
     """
 
     frame_id: str
@@ -152,6 +158,10 @@ class Assessment:
     stamp: float | None = None
     reassessed: int = 0
     seconds: float = 0.0
+    p_net: np.ndarray | None = None
+    guard: np.ndarray | None = None
+    guard_hits: np.ndarray | None = None
+    guard_height: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -174,8 +184,21 @@ class Assessment:
             return i * self.shape[1] + j
         return None
 
+    def reasons(self) -> list[str | None]:
+        """Per tile, why its P(safe) is lower than the network's (None: it is the network's)."""
+        from landing_zone.judging.guard import REASON_SOLID
+
+        if self.guard is None or self.guard_hits is None or self.guard_height is None:
+            return [None] * len(self)
+        return [f'{REASON_SOLID}: {n} returns up to {h:.2f} m' if g else None
+                for g, n, h in zip(self.guard.tolist(), self.guard_hits.tolist(),
+                                   self.guard_height.tolist())]
+
     def to_report(self, stats: dict[str, Any] | None = None) -> dict[str, Any]:
         """The REPORT.json document (docs/INTERFACES.md §3).
+
+        Beyond the contract's keys, ``reasons`` lists the tiles whose P(safe) is lower than the
+        network's (``x``, ``y``, ``reason``, ``p_net``: the network's own P(safe)).
 
         Args:
             stats: the front end's counters (clouds, points, dropped_points, seconds, ...).
@@ -187,9 +210,15 @@ class Assessment:
                           'ground_z': None if math.isnan(gz) else round(gz, 4),
                           'p_safe': None if math.isnan(p) else round(p, 6),
                           'confidence': round(c, 6)})
+        # the tiles' keys are the contract's; why a tile's P(safe) is below the network's goes
+        # beside them, one entry per such tile
+        lowered = [{'x': x, 'y': y, 'reason': why,
+                    'p_net': None if self.p_net is None else round(float(self.p_net[k]), 6)}
+                   for k, ((x, y), why) in enumerate(zip(self.centers.tolist(), self.reasons()))
+                   if why is not None]
         return {'frame_id': self.frame_id, 'tile_size': self.tile_size, 'tiles': tiles,
                 'landing_sites': [s.to_dict() for s in self.sites],
-                'stats': dict(stats or {})}
+                'stats': dict(stats or {}), 'reasons': lowered}
 
 
 class _TileState:
@@ -203,8 +232,13 @@ class _TileState:
         self.ground_z = np.full(shape, np.nan, np.float64)
         self.observed_fraction = np.zeros(shape, np.float32)
         self.n_returns = np.zeros(shape, np.int64)
+        self.p_net = np.full(shape, np.nan, np.float32)
+        self.guard = np.zeros(shape, bool)
+        self.guard_hits = np.zeros(shape, np.int64)
+        self.guard_height = np.full(shape, np.nan, np.float32)
 
-    _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns')
+    _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns', 'p_net',
+               'guard', 'guard_hits', 'guard_height')
 
     def move(self, origin: np.ndarray) -> None:
         """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
@@ -449,6 +483,7 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
+        from landing_zone.judging.guard import guard_p_safe, solid_structure
         from landing_zone.judging.tiles import tiles_from_counts
 
         with self._assess_lock:
@@ -460,17 +495,32 @@ class Assessor:
             # the tiler's kernel runs on the copied counts, outside the lock
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
                                       todo) if counts is not None else None
-            p = np.full(len(todo), np.nan, np.float32)
+            p_net = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
-                p[batch.valid] = self._predictor(batch.inputs[batch.valid],
-                                                 batch_size=self.config.model.batch_size)
+                p_net[batch.valid] = self._predictor(batch.inputs[batch.valid],
+                                                     batch_size=self.config.model.batch_size)
+            p, guard = p_net, None
+            if batch is not None and counts is not None and self.config.guard.enabled:
+                # the guard reads the same counts: opaque structure above the ground caps P(safe)
+                guard = solid_structure(*counts, self.config.map.voxel_size, batch.index,
+                                        np.where(batch.valid, batch.ground_z, np.nan),
+                                        self.tile_vox, self.config.guard)
+                p = guard_p_safe(p_net, guard, self.config.guard)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
                     i, j, inside = st.cells(batch.index)
                     i, j = i[inside], j[inside]
                     st.p_safe[i, j] = p[inside]
+                    st.p_net[i, j] = p_net[inside]
+                    if guard is not None:
+                        st.guard[i, j] = guard.fired[inside]
+                        st.guard_hits[i, j] = guard.hits[inside]
+                        st.guard_height[i, j] = guard.height[inside]
+                    else:
+                        st.guard[i, j], st.guard_hits[i, j], st.guard_height[i, j] = \
+                            False, 0, np.nan
                     st.ground_z[i, j] = batch.ground_z[inside]
                     st.observed_fraction[i, j] = batch.observed_fraction[inside]
                     st.n_returns[i, j] = batch.n_returns[inside]
@@ -497,7 +547,9 @@ class Assessor:
             confidence=st.confidence.ravel().copy(),
             observed_fraction=st.observed_fraction.ravel().copy(),
             n_returns=st.n_returns.ravel().copy(), sites=sites,
-            footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp)
+            footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp,
+            p_net=st.p_net.ravel().copy(), guard=st.guard.ravel().copy(),
+            guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy())
 
     def invalidate(self) -> None:
         """Judge every tile again at the next pass (after a change of the tiles' settings)."""

@@ -26,6 +26,7 @@ __all__ = [
     'TileConfig',
     'ModelConfig',
     'SiteConfig',
+    'GuardConfig',
     'AssessorConfig',
     'StreamConfig',
     'NodeConfig',
@@ -35,7 +36,7 @@ __all__ = [
     'params_yaml',
 ]
 
-SECTIONS = ('map', 'tiles', 'model', 'landing_sites')
+SECTIONS = ('map', 'tiles', 'model', 'landing_sites', 'guard')
 
 
 @dataclass(frozen=True)
@@ -192,6 +193,37 @@ class SiteConfig:
 
 
 @dataclass
+class GuardConfig:
+    """The guard beside the network: opaque structure above the ground (judging.guard)."""
+
+    enabled: bool = param(True, 'Cap P(safe) where opaque structure stands above the ground')
+    min_height: float = param(0.12, "Solid voxels count from this far above the tile's ground",
+                              'm', (0.0, 2.0))
+    max_height: float = param(1.5, '... up to this height above it', 'm', (0.0, 4.0),
+                              open_lo=True)
+    min_hits: int = param(2, 'A solid voxel holds at least this many returns', '', (1, 1000))
+    min_hit_ratio: float = param(
+        0.4, 'A solid voxel ended at least this share of the rays that reached it', '',
+        (0.0, 1.0), open_lo=True)
+    # Behind a solid no ray gets; under grass most go on.
+    max_pass_behind: float = param(
+        0.1, "Shadow: share of a solid voxel's rays crossing the emptiest voxel next to it, "
+        'at most', '', (0.0, 1.0))
+    min_cluster_hits: int = param(20, 'The guard fires on a connected cluster of solid voxels '
+                                  'with at least this many returns', '', (1, 100000))
+    margin: float = param(0.2, "Clusters are traced this far beyond the tile's edges", 'm',
+                          (0.0, 2.0))
+    max_p_safe: float = param(0.05, 'P(safe) of a tile where the guard fires is at most this',
+                              '', (0.0, 1.0))
+
+    def validate(self) -> None:
+        _check_fields(self, 'guard.')
+        if not self.max_height > self.min_height:
+            raise ConfigError(f'guard.max_height ({self.max_height}) must exceed '
+                              f'guard.min_height ({self.min_height})')
+
+
+@dataclass
 class AssessorConfig:
     """The whole pipeline; the defaults are those of the node (docs/INTERFACES.md §1)."""
 
@@ -204,6 +236,7 @@ class AssessorConfig:
     tiles: TileConfig = field(default_factory=TileConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     landing_sites: SiteConfig = field(default_factory=SiteConfig)
+    guard: GuardConfig = field(default_factory=GuardConfig)
 
     def validate(self) -> None:
         if not self.frame_id:
@@ -215,6 +248,7 @@ class AssessorConfig:
         self.tiles.validate()
         self.model.validate()
         self.landing_sites.validate()
+        self.guard.validate()
         ratio = self.map.size_xy / self.tiles.tile_size
         if ratio < 1 or abs(ratio - round(ratio)) > 1e-6:
             raise ConfigError(f'map.size_xy ({self.map.size_xy}) must be a whole multiple of '
@@ -377,6 +411,8 @@ assessor:
 
 
 def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
     if isinstance(value, str):
         return value if value else "''"
     return repr(value)

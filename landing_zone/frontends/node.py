@@ -46,7 +46,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 
-from landing_zone.config import PARAMETERS, configs_from_flat, default_parameters
+from landing_zone.config import PARAMETERS, SECTIONS, configs_from_flat, default_parameters
 from landing_zone.errors import ConfigError, LandingZoneError
 from landing_zone.frontends.stream import NS, Stream
 
@@ -175,7 +175,7 @@ class AssessorNode(Node):
         config, stream_config, rest = configs_from_flat(self._flat())
         a = self.assessor
         # only writable parameters get here; copy every section mechanically
-        for section in ('map', 'tiles', 'model', 'landing_sites'):
+        for section in SECTIONS:
             live, new = getattr(a.config, section), getattr(config, section)
             for name, value in vars(new).items():
                 setattr(live, name, value)
@@ -183,7 +183,7 @@ class AssessorNode(Node):
             setattr(self.stream.config, name, value)
         self.stream.poses_buffer.tolerance_ns = int(round(stream_config.pose_tolerance * NS))
         self.settings.update(rest)
-        if any(p.name.startswith('tiles.') for p in params):
+        if any(p.name.startswith(('tiles.', 'guard.')) for p in params):
             a.invalidate()  # every tile is judged again under the new thresholds
         self.get_logger().info('parameters changed: ' + ', '.join(
             f'{p.name}={p.value}' for p in params))
