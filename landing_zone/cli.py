@@ -39,6 +39,7 @@ app = typer.Typer(
 class DatasetName(str, Enum):
     synth1 = 'synth1'
     synth2 = 'synth2'
+    synth3 = 'synth3'
     hybrid = 'hybrid'
 
 

@@ -73,7 +73,7 @@ __all__ = ['SWEEPS', 'Sweep', 'Scene', 'SceneDataset', 'simulate_dataset', 'gene
 
 FORMAT_VERSION = 1
 TEST_FRACTION = 0.2
-_DATASET_CODES = {'synth1': 1, 'synth2': 2}
+_DATASET_CODES = {'synth1': 1, 'synth2': 2, 'synth3': 3}  # synth3: landing_zone.sim.synth3
 _SPLITS = ('train', 'test', 'both')
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # fixed zip time stamps: same seed, same bytes
 # Obstacle kinds of synth2 are drawn with these weights, then a model of the kind uniformly.
@@ -232,6 +232,9 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
         (N,), ``origins`` float32 (M, 3), ``origin_times`` float32 (M,), ``label``, ``split``,
         ``params`` (JSON-ready), ``rays`` (cast) and ``timings`` (seconds per stage).
     """
+    if dataset == 'synth3':
+        from landing_zone.sim.synth3 import generate_scene as generate_synth3
+        return generate_synth3(index, seed, threads)
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig
@@ -452,9 +455,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
     """Generate (or finish generating) a dataset directory.
 
     Args:
-        dataset: ``synth1`` or ``synth2``.
+        dataset: ``synth1``, ``synth2`` or ``synth3`` (:mod:`landing_zone.sim.synth3`).
         out: directory (created; a rerun with the same arguments resumes).
-        scenes: subsample the sweep evenly to this many scenes (None: the whole sweep).
+        scenes: subsample the sweep evenly to this many scenes (None: the whole sweep); for
+            synth3 the first this many (None: its default size).
         workers: processes (None: one per core; 1: in this process). Workers are forked;
             if this process has already cast rays (Embree's threads must not be forked), they
             are spawned, which needs the calling script's code under
@@ -471,16 +475,22 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         SimulationError: bad arguments (before any work).
         DatasetError: ``out`` holds a different dataset.
     """
-    _get_sweep(dataset)
+    if dataset != 'synth3':
+        _get_sweep(dataset)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
     if workers is not None and (not isinstance(workers, (int, np.integer)) or workers < 1):
         raise SimulationError(f'workers must be a positive integer, got {workers!r}')
     if not isinstance(shard_size, (int, np.integer)) or shard_size < 1:
         raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
-    selected = select_scenes(dataset, scenes, split)
+    if dataset == 'synth3':
+        from landing_zone.sim import synth3
+        selected = synth3.select_scenes(scenes, split)
+        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected)
+    else:
+        selected = select_scenes(dataset, scenes, split)
+        meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
     out = Path(out)
-    meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
     meta_path = out / 'meta.json'
     prepare_output(out, meta, _plan_key)
 

@@ -183,6 +183,11 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
         where = f"tile ({p['tile'][0]:g}, {p['tile'][1]:g}) of {p.get('flight')}" + (
             f", {p.get('altered', 0)} returns moved onto the obstacle" if p.get('obstacle')
             else '')
+    elif p.get('dataset') == 'synth3':  # drawn from the families
+        sen = p['sensor']
+        where = (f"{p['vegetation']['family']} vegetation, {p['terrain']['family']} ground, "
+                 f"{sen['family']} scanner {sen['height']:g} m up"
+                 + ('' if p.get('obstacle') else f" (pair's family {p['family']})"))
     else:
         where = (f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor "
                  f"at x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up")
