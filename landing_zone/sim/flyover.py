@@ -204,8 +204,8 @@ def _plane_count(fly: Flyover, sensor: SensorConfig, start: np.ndarray, speed: f
     with np.errstate(divide='ignore', invalid='ignore'):
         s = (ground_z - o[:, 2]) / d[:, 2]
     p = o[:, :2] + s[:, None] * d[:, :2]
-    inside = (d[:, 2] < 0) & (s <= sensor.max_range) & np.all((p >= aoi_lo) & (p < aoi_hi),
-                                                               axis=1)
+    in_aoi = np.all((p >= aoi_lo) & (p < aoi_hi), axis=1)
+    inside = (d[:, 2] < 0) & (s <= sensor.max_range) & in_aoi
     return float(np.count_nonzero(inside) * stride)
 
 

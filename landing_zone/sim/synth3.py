@@ -257,7 +257,7 @@ def _scanner(plan: dict[str, Any], aoi: tuple[np.ndarray, np.ndarray],
 
 
 def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: float,
-             slope: float, azimuth: float, top: float) -> np.ndarray:
+            slope: float, azimuth: float, top: float) -> np.ndarray:
     """Where rays through the column can be inside the ground-cover layer: the scene module's
     view region, its layer following the slope."""
     from landing_zone.sim.scene import view_region
