@@ -222,7 +222,9 @@ class Device(str, Enum):
                   '--workers 15 --cache-voxels 20\n\n'
                   '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
                   '--data synth2_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
-                  'adaptation)')
+                  'adaptation)\n\n'
+                  '  landing-zone train --data data/synth3 --hold-out obstacle:log --out '
+                  'lofo_log.safetensors  (leave one family out)')
 def train(
     data: Annotated[list[Path], typer.Option(
         help='Dataset directory (landing-zone simulate); repeat to train on the train splits '
@@ -261,6 +263,9 @@ def train(
         help='Continue from OUT.train.safetensors if it exists.')] = False,
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec).')] = None,
+    hold_out: Annotated[Optional[list[str]], typer.Option(
+        help='Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
+             'terrain:sloped, sensor:rosette; synth3 data); repeat for more.')] = None,
 ) -> None:
     from landing_zone.model import DEFAULT_SPEC, read_metadata
     from landing_zone.train import TrainConfig, train as run_train
@@ -273,7 +278,7 @@ def train(
                       val_fraction=val_fraction, workers=workers, seed=seed,
                       device=device.value, dropout=dropout, cache_voxels=cache_voxels,
                       edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,
-                      precision=precision)
+                      precision=precision, hold_out=list(hold_out or []))
     s = run_train(data, out, cfg, resume=resume, init=init)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
@@ -320,7 +325,9 @@ class Split(str, Enum):
                   'model.safetensors --out-dir eval\n\n'
                   '  landing-zone evaluate --data data/synth2 --baselines --json results.json'
                   '\n\n  landing-zone evaluate --data data/synth2 --model a.safetensors --model '
-                  'b.safetensors --baselines')
+                  'b.safetensors --baselines\n\n'
+                  '  landing-zone evaluate --data data/synth3 --by-family --model '
+                  'final.safetensors --model lofo_log.safetensors --json lofo.json')
 def evaluate(
     data: Annotated[Path, typer.Option(help='Dataset directory.')],
     model: Annotated[Optional[list[Path]], typer.Option(
@@ -337,12 +344,16 @@ def evaluate(
     max_scenes: Annotated[int, typer.Option(
         help='Evaluate an even subset of this many scenes (0: all).')] = 0,
     seed: Annotated[int, typer.Option(help='Seed of the baselines.')] = 0,
+    by_family: Annotated[bool, typer.Option(
+        help='synth3: the figures per obstacle, vegetation, terrain and sensor family, and '
+             'the leave-one-family-out table (each family judged by a --model that never '
+             'saw it).')] = False,
 ) -> None:
     from landing_zone.evaluate import evaluate as run_evaluate
 
     res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
                        split=split.value, workers=workers, fit_scenes=fit_scenes,
-                       max_scenes=max_scenes, seed=seed)
+                       max_scenes=max_scenes, seed=seed, by_family=by_family)
     print(res['table'], end='')
 
 
