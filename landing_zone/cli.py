@@ -122,7 +122,8 @@ def replay(
 # --- insert-obstacles -------------------------------------------------------------------------
 
 @app.command(name='insert-obstacles',
-             help='Insert virtual obstacles of the simulator\'s library into a recorded flight: '
+             help='Insert virtual obstacles of the simulator\'s library or its obstacle families '
+                  'into a recorded flight: '
                   'every return whose ray meets an obstacle first moves onto its surface (plus '
                   'range noise), every other byte of the bag stays as it was. Writes OUT.mcap '
                   'and OUT.labels.json (the flight\'s labels, or its covered tiles as safe, '
@@ -131,6 +132,8 @@ def replay(
                   '--count 6\n\n'
                   '  landing-zone insert-obstacles flight.bag --out h.mcap --region -5 -5 5 5 '
                   '--kinds rock,tire --group train --seed 2\n\n'
+                  '  landing-zone insert-obstacles site.mcap --out f.mcap --families all '
+                  '--count 17\n\n'
                   '  landing-zone insert-obstacles site.mcap --out h.mcap --labels '
                   'site.labels.json --points-topic /points --pose-topic /sensor_pose')
 def insert_obstacles(
@@ -138,9 +141,12 @@ def insert_obstacles(
         help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
     out: Annotated[Path, typer.Option(help='Output bag (.mcap); labels go beside it.')],
     count: Annotated[int, typer.Option(help='Obstacles to insert.')] = 6,
-    kinds: Annotated[str, typer.Option(
-        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box), cycled.')]
-    = 'rock,tire,cinder_block,box',
+    kinds: Annotated[Optional[str], typer.Option(
+        help='Obstacle kinds of the library, comma separated (rock, tire, cinder_block, '
+             'box), cycled [default: all four, unless --families is given].')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families, comma separated (e.g. log,bucket,coil; all, train, test), '
+             'cycled after the kinds: random instances of --group.')] = None,
     group: Annotated[str, typer.Option(
         help='train or test: the obstacle models of that dataset split.')] = 'test',
     region: Annotated[Optional[tuple[float, float, float, float]], typer.Option(
@@ -159,10 +165,13 @@ def insert_obstacles(
     frame_id: Annotated[str, typer.Option(help='The fixed frame of clouds and poses.')] = 'map',
     overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
 ) -> None:
-    from landing_zone.insert import insert_obstacles as run_insert
+    from landing_zone.insert import DEFAULT_KINDS, insert_obstacles as run_insert
 
-    r = run_insert(bag, out, count=count, seed=seed,
-                   kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()), group=group,
+    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
+               else () if families else DEFAULT_KINDS)
+    r = run_insert(bag, out, count=count, seed=seed, kinds=kinds_t,
+                   families=tuple(f.strip() for f in (families or '').split(',') if f.strip()),
+                   group=group,
                    region=region, labels=labels, points_topic=points_topic,
                    pose_topic=pose_topic, frame_id=frame_id, range_sigma=range_noise,
                    overwrite=overwrite)
@@ -434,16 +443,24 @@ _KINDS = 'rock,tire,cinder_block,box'
                   '  landing-zone simulate-flight --out big.mcap --size 40 --obstacles 12 '
                   '--kinds rock,tire --grass-density 1200 --seed 3\n\n'
                   '  landing-zone simulate-flight --out v.mcap --vegetation mixed '
-                  '--scan-pattern spinning --density 2000')
+                  '--scan-pattern spinning --density 2000\n\n'
+                  '  landing-zone simulate-flight --out f.mcap --families test --obstacles 8 '
+                  '--vegetation lodged --slope 10 --scan-pattern elliptical --height 15')
 def simulate_flight(
     out: Annotated[Path, typer.Option(help='SITE.mcap to write.')],
     size: Annotated[float, typer.Option(help='Edge of the square site [m].')] = 20.0,
     obstacles: Annotated[int, typer.Option(help='Number of obstacles.')] = 6,
-    kinds: Annotated[str, typer.Option(
-        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box).')] = _KINDS,
+    kinds: Annotated[Optional[str], typer.Option(
+        help='Obstacle kinds of the library, comma separated (rock, tire, cinder_block, box) '
+             '[default: all four, unless --families is given].')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families, comma separated (rock, slab, rubble, log, stump, brush, box, '
+             'crate, bucket, pipe, tire, cinder_block, post, cone, coil, pallet, sack; or all, '
+             'train, test): random test instances, cycled after the kinds.')] = None,
     vegetation: Annotated[str, typer.Option(
         help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
-             'mixed.')] = 'default',
+             'mixed; or a vegetation family of synth3: uniform, tussock, lodged, layered, '
+             'bare (gravel), shrub.')] = 'default',
     grass_density: Annotated[Optional[float], typer.Option(
         help='Blades per m^2 of a typical patch [default: 600].')] = None,
     grass_height: Annotated[Optional[float], typer.Option(
@@ -461,8 +478,14 @@ def simulate_flight(
         help='Shrubs per m^2 (0.2-0.4 m high, 0.3-0.6 m across).')] = None,
     scan_pattern: Annotated[str, typer.Option(
         help='Scanner: line (the default nodding line scanner), spinning (16 beams), '
-             'rosette.')] = 'line',
+             'rosette, elliptical (a nutating mirror\'s 40 degree cone).')] = 'line',
     height: Annotated[float, typer.Option(help='Flight height above the ground [m].')] = 8.0,
+    slope: Annotated[float, typer.Option(
+        help='The site lies on a plane this steep [deg].')] = 0.0,
+    slope_azimuth: Annotated[float, typer.Option(
+        help='... rising towards this direction [deg from x].')] = 0.0,
+    roughness: Annotated[Optional[float], typer.Option(
+        help='Amplitude of the ground\'s bumps [m] [default: 0.05].')] = None,
     tilt: Annotated[Optional[float], typer.Option(
         help='Forward tilt of the scan\'s centre from the nadir [deg] [default: 45, rosette '
              '20].')] = None,
@@ -477,9 +500,15 @@ def simulate_flight(
 ) -> None:
     from landing_zone.sim.flight import flight_config, simulate_flight as run_flight
 
+    import math
+
+    fams = tuple(f.strip() for f in (families or '').split(',') if f.strip())
+    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
+               else () if fams else tuple(_KINDS.split(',')))
     cfg = flight_config(vegetation, scan_pattern, density=density, size=size,
-                        obstacles=obstacles,
-                        kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()),
+                        obstacles=obstacles, kinds=kinds_t, families=fams,
+                        slope=slope, slope_azimuth=math.radians(slope_azimuth),
+                        amplitude=roughness,
                         grass_density=grass_density, grass_height=grass_height,
                         clump_size=clump_size, clump_radius=clump_radius,
                         inclination_std=lean, max_height=max_grass_height,

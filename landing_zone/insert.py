@@ -334,11 +334,14 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
                     region: Sequence[float] | None = None,
                     labels: dict[str, Any] | None = None,
                     separation: float = MIN_SEPARATION, sink: float = SINK,
+                    families: Sequence[str] = (),
                     ) -> list[Obstacle]:
     """Random obstacles standing on the ground the returns show.
 
-    Kinds are cycled through (obstacle ``i`` is of ``kinds[i % len(kinds)]``), each a model of
-    its kind drawn uniformly from ``group``; positions are uniform in ``region`` or in the safe
+    Kinds, then families, are cycled through (obstacle ``i`` is of entry ``i`` modulo their
+    number): a kind's model is drawn uniformly from the library's ``group``, a family's is a
+    random instance of that group's instances (:mod:`landing_zone.sim.families`; None: test
+    instances); positions are uniform in ``region`` or in the safe
     tiles of ``labels`` (both: a safe tile's part of the region), yaws uniform. A spot is taken
     when it keeps ``separation`` from every obstacle placed or labelled and the returns around it
     give a ground height (:func:`ground_height`).
@@ -350,6 +353,7 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
         kinds: obstacle kinds (see :data:`~landing_zone.sim.obstacles.KINDS`).
         group: ``train`` or ``test`` models (as the datasets split them), None for any.
         region: ``(x0, y0, x1, y1)``.
+        families: obstacle families (:data:`~landing_zone.sim.families.FAMILIES`).
         labels: a SITE.labels.json document.
         separation: least distance between obstacle centres [m].
         sink: how far below the estimated ground an obstacle's lowest point sits [m].
@@ -365,9 +369,11 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
 
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise SimulationError(f'count must be a positive integer, got {count!r}')
+    from landing_zone.sim.families import draw_instance, parse_families
     kinds = tuple(kinds)
-    if not kinds:
-        raise SimulationError('give at least one obstacle kind')
+    families = parse_families(tuple(families))
+    if not kinds and not families:
+        raise SimulationError('give at least one obstacle kind or family')
     by_kind = {k: sorted(models((k,), group), key=lambda m: m.name) for k in kinds}
     empty = [k for k, v in by_kind.items() if not v]
     if empty:
@@ -408,10 +414,14 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
              for o in (labels or {}).get('obstacles', []) if 'x' in o and 'y' in o]
     tree = cKDTree(p[:, :2]) if len(p) else None
     out: list[Obstacle] = []
+    entries = kinds + families
     for i in range(count):
-        kind = kinds[i % len(kinds)]
-        choices = by_kind[kind]
-        model = choices[int(rng.integers(len(choices)))]
+        entry = entries[i % len(entries)]
+        if i % len(entries) < len(kinds):
+            choices = by_kind[entry]
+            model = choices[int(rng.integers(len(choices)))]
+        else:
+            model = draw_instance(entry, group, rng).model
         radius = _ground_radius(model)
         for _ in range(_PLACE_TRIES):
             if labels is not None:
@@ -728,6 +738,7 @@ def read_flight(bag: str | os.PathLike[str], points_topic: str = '/lidar/points'
 
 def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *,
                      count: int = 6, seed: int = 0, kinds: Sequence[str] = DEFAULT_KINDS,
+                     families: Sequence[str] = (),
                      group: str = 'test', region: Sequence[float] | None = None,
                      labels: str | os.PathLike[str] | None = None,
                      obstacles: Sequence[Obstacle] | None = None,
@@ -742,6 +753,7 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
         count: obstacles to insert.
         seed: of the placement and the range noise.
         kinds: obstacle kinds, cycled through.
+        families: obstacle families, cycled through after the kinds (random instances).
         group: ``train`` or ``test`` obstacle models (as the datasets split them).
         region: ``(x0, y0, x1, y1)`` where obstacles may stand.
         labels: SITE.labels.json of the flight (default ``BAG.labels.json`` beside the bag if
@@ -786,6 +798,8 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     if group not in ('train', 'test'):
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     models(tuple(kinds), group)  # unknown kinds fail here, before any reading
+    from landing_zone.sim.families import parse_families
+    families = parse_families(tuple(families))
     labels_in = Path(labels) if labels is not None else labels_path_for(bag)
     if labels is not None and not labels_in.exists():
         raise ConfigError(f'labels file not found: {labels_in}')
@@ -801,11 +815,12 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     seeds = np.random.SeedSequence([int(seed), 0x1E5E47]).spawn(2)
     if obstacles is None:
         placed = place_obstacles(points, count, np.random.default_rng(seeds[0]), kinds=kinds,
-                                 group=group, region=region, labels=doc)
+                                 group=group, region=region, labels=doc, families=families)
     else:
         placed = list(obstacles)
     scene = ObstacleScene(placed, threads=threads)
     extra = {'source': bag.name, 'seed': int(seed), 'group': group, 'kinds': list(kinds),
+             **({'families': list(families)} if families else {}),
              'count': len(placed), 'range_sigma': range_sigma,
              'region': list(map(float, region)) if region is not None else None,
              'sink': SINK}

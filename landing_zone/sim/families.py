@@ -41,7 +41,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -49,10 +49,14 @@ from landing_zone.errors import SimulationError
 from landing_zone.sim import shapes as sh
 from landing_zone.sim.obstacles import ObstacleModel, _cinder_block
 
+if TYPE_CHECKING:
+    from landing_zone.sim.obstacles import Obstacle
+    from landing_zone.sim.terrain import Terrain
+
 __all__ = ['Traits', 'Family', 'Instance', 'FAMILIES', 'TEST_FAMILIES', 'TRAIN_FAMILIES',
            'TEST_BASE', 'FAMILY_SEED', 'MAX_ACROSS', 'MAX_RADIUS', 'MIN_VISIBLE', 'get_family',
            'instance', 'instance_model', 'is_instance_name', 'parse_families',
-           'instance_group', 'draw_instance']
+           'instance_group', 'draw_instance', 'keep_visible']
 
 FAMILY_SEED = 0x5EED_FA71  # first word of every family's seed stream
 TEST_BASE = 1 << 30  # instance indices from here on are test instances
@@ -720,3 +724,15 @@ def draw_instance(family: str, group: str | None, rng: np.random.Generator) -> I
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     base = 0 if group == 'train' else TEST_BASE
     return instance(family, base + int(rng.integers(TEST_BASE)))
+
+
+def keep_visible(obstacle: 'Obstacle', terrain: 'Terrain') -> 'Obstacle':
+    """``obstacle`` raised, if need be, until it stands :data:`MIN_VISIBLE` above the ground
+    beneath it: placing on the lowest ground under the footprint sinks it on the uphill side
+    of a slope, and a buried instance could vanish there."""
+    from dataclasses import replace
+    v = obstacle.vertices()
+    above = float(np.max(v[:, 2] - terrain.height(v[:, 0], v[:, 1])))
+    if above < MIN_VISIBLE:
+        return replace(obstacle, z=obstacle.z + MIN_VISIBLE - above)
+    return obstacle

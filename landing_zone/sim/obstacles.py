@@ -233,8 +233,11 @@ def models(kinds: tuple[str, ...] | list[str] | None = None,
     if kinds is not None:
         unknown = [k for k in kinds if k not in KINDS]
         if unknown:
+            from landing_zone.sim.families import FAMILIES
+            hint = (f' ({unknown[0]!r} is an obstacle family: give it as a family, e.g. '
+                    f'--families {unknown[0]})' if unknown[0] in FAMILIES else '')
             raise SimulationError(f'unknown obstacle kind {unknown[0]!r}; choose from '
-                                  f'{", ".join(KINDS)}')
+                                  f'{", ".join(KINDS)}{hint}')
     if group not in (None, 'train', 'test'):
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     return [m for m in library().values()

@@ -271,7 +271,7 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any
     """Simulate scene ``index`` of synth3: the record :func:`landing_zone.sim.dataset.
     generate_scene` returns (``points_mm``, ``hit_class``, ``origin_index``, ``origins``,
     ``origin_times``, ``label``, ``split``, ``params``, ``rays``, ``timings``)."""
-    from landing_zone.sim.families import MIN_VISIBLE, instance
+    from landing_zone.sim.families import instance, keep_visible
     from landing_zone.sim.flyover import flyover_scan
     from landing_zone.sim.mesh import Mesh
     from landing_zone.sim.obstacles import place
@@ -312,12 +312,7 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any
         x, y = rng.uniform(-free, free, 2)
         obstacle = place(model, float(x), float(y), float(rng.uniform(0.0, 2.0 * np.pi)),
                          terrain)
-        # On a slope the lowest ground under the footprint sinks it on the uphill side: keep
-        # it standing at least MIN_VISIBLE above the ground beneath it.
-        v = obstacle.vertices()
-        above = float(np.max(v[:, 2] - terrain.height(v[:, 0], v[:, 1])))
-        if above < MIN_VISIBLE:
-            obstacle = replace(obstacle, z=obstacle.z + MIN_VISIBLE - above)
+        obstacle = keep_visible(obstacle, terrain)
     keep_out = ([(obstacle.x, obstacle.y, model.radius + 0.05)] if obstacle is not None
                 else [])
     cover, ground_cover, bushes = build_vegetation(veg, terrain, rng, region, keep_out, aoi)

@@ -12,7 +12,7 @@ presence of an obstacle only.
               15-45 cm, splaying out, bare ground between
 ``lodged``    flattened grass: long blades bent over by 55-80 degrees, most of them towards one
               direction (rain or wind), tips 4-18 cm above the ground, 2500-5500 per m^2
-``mixed``     a dense low layer (5-15 cm) under sparser tall curving blades (25-45 cm)
+``layered``   a dense low layer (5-15 cm) under sparser tall curving blades (25-45 cm)
 ``bare``      bare ground with gravel (pebbles of 1-4 cm) and debris (bark chips, twigs) under
               5 cm, and a little short grass
 ``shrub``     low shrubs of leaves and twigs 15-35 cm high, 0.3-0.7 m across, over short grass;
@@ -34,8 +34,9 @@ from typing import Any, Callable
 import numpy as np
 
 from landing_zone.errors import SimulationError
-from landing_zone.sim.grass import (Bush, VegetationConfig, blade_strips, bush_mesh,
-                                    place_bushes, points_in_polygon, vegetation_blades)
+from landing_zone.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
+                                    bush_mesh, place_bushes, points_in_polygon,
+                                    vegetation_blades)
 from landing_zone.sim.mesh import GROUND, Mesh
 from landing_zone.sim.terrain import Terrain
 
@@ -67,7 +68,7 @@ def _draw_lodged(rng: np.random.Generator) -> dict[str, Any]:
             'azimuth': _u(rng, 0, 2 * math.pi), 'spread': _u(rng, 15, 45)}
 
 
-def _draw_mixed(rng: np.random.Generator) -> dict[str, Any]:
+def _draw_layered(rng: np.random.Generator) -> dict[str, Any]:
     return {'density': _u(rng, 1500, 4000), 'height': _u(rng, 0.05, 0.15),
             'width': _u(rng, 0.003, 0.006), 'tall_density': _u(rng, 250, 1000),
             'tall_height': _u(rng, 0.25, 0.42), 'tall_width': _u(rng, 0.004, 0.008)}
@@ -90,7 +91,7 @@ def _draw_shrub(rng: np.random.Generator) -> dict[str, Any]:
 
 _DRAW: dict[str, Callable[[np.random.Generator], dict[str, Any]]] = {
     'uniform': _draw_uniform, 'tussock': _draw_tussock, 'lodged': _draw_lodged,
-    'mixed': _draw_mixed, 'bare': _draw_bare, 'shrub': _draw_shrub}
+    'layered': _draw_layered, 'bare': _draw_bare, 'shrub': _draw_shrub}
 VEGETATION_FAMILIES = tuple(_DRAW)
 
 
@@ -111,7 +112,7 @@ def vegetation_top(params: dict[str, Any]) -> float:
     fam = params['family']
     if fam == 'shrub':
         return max(float(params['bush_height'][1]), _blade_top(params['height']))
-    if fam == 'mixed':
+    if fam == 'layered':
         return max(_blade_top(params['height']), _blade_top(params['tall_height']))
     if fam == 'bare':
         return max(_blade_top(params['height']), 0.05)
@@ -127,7 +128,7 @@ def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
     height set to it, within the family's range. Families that cannot hide anything (lodged,
     bare, shrub) are returned unchanged."""
     out = dict(params)
-    key = {'uniform': 'height', 'tussock': 'height', 'mixed': 'tall_height'}.get(
+    key = {'uniform': 'height', 'tussock': 'height', 'layered': 'tall_height'}.get(
         params['family'])
     if key is not None:
         out[key] = round(float(np.clip(height, 0.08, 0.42)), 4)
@@ -136,7 +137,9 @@ def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
 
 def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
                      polygon: np.ndarray, keep_out: list[tuple[float, float, float]] = (),
-                     tile: tuple[np.ndarray, np.ndarray] | None = None
+                     tile: tuple[np.ndarray, np.ndarray] | None = None,
+                     density_scale: ScaleField | None = None,
+                     height_scale: ScaleField | None = None
                      ) -> tuple[Mesh, Mesh, list[Bush]]:
     """The meshes of a patch's vegetation.
 
@@ -147,6 +150,8 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
         polygon: (K, 2) convex counter-clockwise region to cover.
         keep_out: (x, y, radius) discs no shrub reaches into (the obstacle).
         tile: the tile's corners (shrubs: where one stands more often than not).
+        density_scale, height_scale: optional fields in [0, 1] and around 1 that thin the
+            blades and scale their height (a flight site's patches and clearings).
 
     Returns:
         ``(vegetation, ground_cover, bushes)``: blades and shrubs (GRASS faces), gravel and
@@ -158,7 +163,7 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
     parts: list[Mesh] = []
     cover = Mesh.empty()
     bushes: list[Bush] = []
-    if fam in ('uniform', 'tussock', 'mixed', 'bare', 'shrub'):
+    if fam in ('uniform', 'tussock', 'layered', 'bare', 'shrub'):
         cfg = VegetationConfig(
             blade_width=params.get('width', 0.004), inclination_std=params.get('lean', 15.0),
             clump_size=params.get('clump_size', 0.0),
@@ -166,15 +171,15 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
             segments=3 if fam == 'tussock' else 2, bend=1.5 if fam == 'tussock' else 1.0,
             max_height=MAX_VEGETATION_HEIGHT)
         parts.append(vegetation_blades(cfg, params['density'], params['height'], terrain, rng,
-                                       polygon))
-    if fam == 'mixed':
+                                       polygon, density_scale, height_scale))
+    if fam == 'layered':
         tall = VegetationConfig(blade_width=params['tall_width'], inclination_std=30.0,
                                 height_cv=0.2, segments=4, bend=2.0,
                                 max_height=MAX_VEGETATION_HEIGHT)
         parts.append(vegetation_blades(tall, params['tall_density'], params['tall_height'],
-                                       terrain, rng, polygon))
+                                       terrain, rng, polygon, density_scale, height_scale))
     if fam == 'lodged':
-        parts.append(_lodged(params, terrain, rng, polygon))
+        parts.append(_lodged(params, terrain, rng, polygon, density_scale))
     if fam == 'bare':
         cover = Mesh.concat([_gravel(params, terrain, rng, polygon),
                              _debris(params, terrain, rng, polygon)])
@@ -196,7 +201,7 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
 
 
 def _lodged(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
-            polygon: np.ndarray) -> Mesh:
+            polygon: np.ndarray, density_scale: ScaleField | None = None) -> Mesh:
     """Blades bent over: long pieces curving down, mostly towards one direction."""
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
     # Bases up to a blade's reach outside the region lean into it.
@@ -204,6 +209,9 @@ def _lodged(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
     lo, hi = lo - reach, hi + reach
     n = rng.poisson(params['density'] * float(np.prod(hi - lo)))
     xy = lo + (hi - lo) * rng.random((n, 2))
+    if density_scale is not None:
+        xy = xy[rng.random(n) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)]
+        n = len(xy)
     if n == 0:
         return Mesh.empty()
     height = params['height'] * np.maximum(1.0 + 0.3 * np.clip(rng.standard_normal(n), -3, 3),
