@@ -5,6 +5,7 @@ is parsed here with argparse and imports nothing else (``landing-zone simulate``
 command behind the project's typer CLI)::
 
     python -m landing_zone.sim simulate --dataset synth2 --out data/synth2 --workers 16
+    python -m landing_zone.sim simulate --dataset synth3 --split train --out data/synth3
     python -m landing_zone.sim simulate --dataset hybrid --from a.mcap b.mcap --out data/hybrid
     python -m landing_zone.sim simulate-flight --out site.mcap        (needs rosbags)
     python -m landing_zone.sim simulate-flight --out v.mcap --vegetation clumped \
@@ -27,7 +28,7 @@ def _parser() -> argparse.ArgumentParser:
                                 description='LiDAR simulator: datasets, flights, pictures.')
     sub = p.add_subparsers(dest='command', required=True)
     s = sub.add_parser('simulate', help="labelled patches of the paper's Table I sweep")
-    s.add_argument('--dataset', required=True, choices=('synth1', 'synth2', 'hybrid'))
+    s.add_argument('--dataset', required=True, choices=('synth1', 'synth2', 'synth3', 'hybrid'))
     s.add_argument('--out', required=True, help='output directory (a rerun resumes)')
     s.add_argument('--scenes', type=int, default=None, help='subsample the sweep evenly')
     s.add_argument('--workers', type=int, default=None, help='processes (default: all cores)')
@@ -47,9 +48,13 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument('--out', required=True, help='SITE.mcap (labels go to SITE.labels.json)')
     f.add_argument('--size', type=float, default=20.0)
     f.add_argument('--obstacles', type=int, default=6)
-    f.add_argument('--kinds', default='rock,tire,cinder_block,box')
+    f.add_argument('--kinds', default=None,
+                   help='library kinds (default rock,tire,cinder_block,box unless --families)')
+    f.add_argument('--families', default=None,
+                   help='obstacle families, comma separated (or all, train, test)')
     f.add_argument('--vegetation', default='default',
-                   help='default, clumped, tall, bushy or mixed')
+                   help='default, clumped, tall, bushy or mixed; or a vegetation family: '
+                        'uniform, tussock, lodged, layered, bare, shrub')
     f.add_argument('--grass-density', type=float, default=None, help='default 600')
     f.add_argument('--grass-height', type=float, default=None,
                    help="default: the preset's, else 0.25")
@@ -58,8 +63,12 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument('--lean', type=float, default=None, help='blade lean std [deg]')
     f.add_argument('--max-grass-height', type=float, default=None)
     f.add_argument('--bushes', type=float, default=None, help='shrubs per m^2')
-    f.add_argument('--scan-pattern', default='line', help='line, spinning or rosette')
+    f.add_argument('--scan-pattern', default='line',
+                   help='line, spinning, rosette or elliptical')
     f.add_argument('--height', type=float, default=8.0)
+    f.add_argument('--slope', type=float, default=0.0, help='site slope [deg]')
+    f.add_argument('--slope-azimuth', type=float, default=0.0, help='rising towards [deg]')
+    f.add_argument('--roughness', type=float, default=None, help='ground bumps [m]')
     f.add_argument('--tilt', type=float, default=None)
     f.add_argument('--line-spacing', type=float, default=None)
     f.add_argument('--density', type=float, default=None, help='target returns per m^2')
@@ -93,10 +102,18 @@ def main(argv: list[str] | None = None) -> int:
                                        progress=not args.quiet)
             print(json.dumps(summary, indent=1))
         elif args.command == 'simulate-flight':
+            import math
+
             from landing_zone.sim.flight import flight_config, simulate_flight
+            fams = tuple(f.strip() for f in (args.families or '').split(',') if f.strip())
+            kinds = (tuple(k.strip() for k in args.kinds.split(',') if k.strip())
+                     if args.kinds is not None else () if fams
+                     else ('rock', 'tire', 'cinder_block', 'box'))
             cfg = flight_config(args.vegetation, args.scan_pattern, density=args.density,
-                                size=args.size, obstacles=args.obstacles,
-                                kinds=tuple(k.strip() for k in args.kinds.split(',') if k),
+                                size=args.size, obstacles=args.obstacles, kinds=kinds,
+                                families=fams, slope=args.slope,
+                                slope_azimuth=math.radians(args.slope_azimuth),
+                                amplitude=args.roughness,
                                 grass_density=args.grass_density,
                                 grass_height=args.grass_height, clump_size=args.clump_size,
                                 clump_radius=args.clump_radius, inclination_std=args.lean,

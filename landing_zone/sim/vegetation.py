@@ -10,8 +10,8 @@ presence of an obstacle only.
               hidden at the dense end
 ``tussock``   clumps (Thomas process) of 40-150 blades 4-9 cm across, 1500-5000 blades per m^2,
               15-45 cm, splaying out, bare ground between
-``lodged``    flattened grass: long blades bent over by 55-80 degrees, most of them towards one
-              direction (rain or wind), tips 4-18 cm above the ground, 2500-5500 per m^2
+``lodged``    flattened grass: long blades bent over at the base by 65-85 degrees, mostly
+              towards one direction (rain or wind), tips 4-18 cm up, 2500-5500 per m^2
 ``layered``   a dense low layer (5-15 cm) under sparser tall curving blades (25-45 cm)
 ``bare``      bare ground with gravel (pebbles of 1-4 cm) and debris (bark chips, twigs) under
               5 cm, and a little short grass
@@ -44,6 +44,7 @@ __all__ = ['VEGETATION_FAMILIES', 'SAFE_SHRUB_HEIGHT', 'MAX_VEGETATION_HEIGHT',
            'draw_vegetation', 'vegetation_top', 'hide_obstacle', 'build_vegetation']
 
 SAFE_SHRUB_HEIGHT = 0.35  # [m]
+_LODGED_LENGTH = 0.6  # [m] longest blade of lodged grass
 MAX_VEGETATION_HEIGHT = 0.45  # [m] no blade tip or leaf higher above its base
 
 
@@ -64,7 +65,7 @@ def _draw_tussock(rng: np.random.Generator) -> dict[str, Any]:
 
 def _draw_lodged(rng: np.random.Generator) -> dict[str, Any]:
     return {'density': _u(rng, 2500, 5500), 'height': _u(rng, 0.04, 0.18),
-            'width': _u(rng, 0.004, 0.008), 'lean': _u(rng, 55, 80),
+            'width': _u(rng, 0.004, 0.008), 'lean': _u(rng, 65, 85),
             'azimuth': _u(rng, 0, 2 * math.pi), 'spread': _u(rng, 15, 45)}
 
 
@@ -111,16 +112,19 @@ def vegetation_top(params: dict[str, Any]) -> float:
     """The highest any part of this vegetation can reach above the ground [m]."""
     fam = params['family']
     if fam == 'shrub':
-        return max(float(params['bush_height'][1]), _blade_top(params['height']))
+        # A leaf centred at the canopy's top reaches its circumradius above it.
+        return max(float(params['bush_height'][1]) + 0.03, _blade_top(params['height']))
     if fam == 'layered':
         return max(_blade_top(params['height']), _blade_top(params['tall_height']))
     if fam == 'bare':
         return max(_blade_top(params['height']), 0.05)
+    if fam == 'lodged':
+        return _blade_top(params['height'], 0.3)
     return _blade_top(params['height'])
 
 
-def _blade_top(mean: float) -> float:
-    return min(mean * 1.75, MAX_VEGETATION_HEIGHT)  # +3 sigma of a 25 % spread, capped
+def _blade_top(mean: float, spread: float = 0.25) -> float:
+    return min(mean * (1.0 + 3.0 * spread), MAX_VEGETATION_HEIGHT)  # +3 sigma, capped
 
 
 def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
@@ -202,11 +206,10 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
 
 def _lodged(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
             polygon: np.ndarray, density_scale: ScaleField | None = None) -> Mesh:
-    """Blades bent over: long pieces curving down, mostly towards one direction."""
+    """Blades bent over at the base, lying towards one direction (give or take a spread)."""
     lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    # Bases up to a blade's reach outside the region lean into it.
-    reach = params['height'] * math.tan(math.radians(min(params['lean'] + 10.0, 85.0))) + 0.05
-    lo, hi = lo - reach, hi + reach
+    # Bases up to a blade's length outside the region lean into it.
+    lo, hi = lo - _LODGED_LENGTH - 0.05, hi + _LODGED_LENGTH + 0.05
     n = rng.poisson(params['density'] * float(np.prod(hi - lo)))
     xy = lo + (hi - lo) * rng.random((n, 2))
     if density_scale is not None:
@@ -216,10 +219,17 @@ def _lodged(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
         return Mesh.empty()
     height = params['height'] * np.maximum(1.0 + 0.3 * np.clip(rng.standard_normal(n), -3, 3),
                                            0.3)
-    incl = np.radians(np.clip(params['lean'] + 8.0 * rng.standard_normal(n), 30.0, 85.0))
+    incl = np.radians(np.clip(params['lean'] + 8.0 * rng.standard_normal(n), 45.0, 88.0))
+    # bend < 1: the lean comes at the base, the blade lies over (bend > 1 would droop a tip).
+    bend, pieces = 0.15, 3
+    k = (np.arange(1, pieces + 1) / pieces) ** bend
+    mean_cos = np.cos(incl[:, None] * k[None, :]).mean(axis=1)
+    # No blade longer than _LODGED_LENGTH: a tip that low on a blade that flat comes down.
+    height = np.minimum(height, _LODGED_LENGTH * mean_cos)
     azimuth = params['azimuth'] + np.radians(params['spread']) * rng.standard_normal(n)
     base = np.column_stack([xy, terrain.height(xy[:, 0], xy[:, 1]) - 0.005])
-    mesh = blade_strips(base, height, incl, azimuth, params['width'], segments=3, bend=1.5)
+    mesh = blade_strips(base, height, incl, azimuth, params['width'], segments=pieces,
+                        bend=bend)
     # Keep the blades whose tips come down inside the region (bases may lie outside it).
     tips = mesh.vertices.reshape(n, -1, 3)[:, -1, :2]
     keep = points_in_polygon(tips.astype(float), polygon) | points_in_polygon(xy, polygon)
