@@ -546,18 +546,24 @@ def render(
                   'flight, assess it with the shipped model, print the tile map, the AUC '
                   'against the ground truth, and write a PNG and a report.\n\n'
                   'Examples:\n\n  landing-zone demo\n\n'
-                  '  landing-zone demo --out-dir /tmp/lz --seed 3')
+                  '  landing-zone demo --out-dir /tmp/lz --seed 3\n\n'
+                  '  landing-zone demo --families test  (obstacles the shipped model never '
+                  'saw)')
 def demo(
     out_dir: Annotated[Path, typer.Option(help='Where the bags, report and PNG go.')]
     = Path('lz_demo'),
     seed: Annotated[int, typer.Option(help='Seed of the simulated site and flight.')] = 0,
     model: Annotated[Optional[Path], typer.Option(
         help='Model file; default the shipped one.')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families whose test instances join the site (comma separated; all, '
+             'train, test), one obstacle each.')] = None,
 ) -> None:
     from landing_zone.demo import run_demo
+    from landing_zone.sim.families import parse_families
 
     t0 = time.perf_counter()
-    run_demo(out_dir, seed=seed, model=model)
+    run_demo(out_dir, seed=seed, model=model, families=parse_families(families or ''))
     print(f'demo done in {time.perf_counter() - t0:.0f} s')
 
 
