@@ -119,8 +119,10 @@ def render_library(out: str | os.PathLike) -> Path:
     return _render_models(lib, [f'{m.name} ({m.group})' for m in lib], out, 6, 0.26)
 
 
-def render_families(out: str | os.PathLike, per_family: int = 6) -> Path:
-    """The first ``per_family`` test instances of every obstacle family, one row each."""
+def render_families(out: str | os.PathLike, per_family: int = 4, cols: int = 8,
+                    panel: float = 1.7) -> Path:
+    """The first ``per_family`` test instances of every obstacle family, ``cols`` to a row,
+    ``panel`` inches each."""
     from landing_zone.sim.families import FAMILIES, TEST_BASE, instance
     models, titles = [], []
     for name, fam in FAMILIES.items():
@@ -129,16 +131,17 @@ def render_families(out: str | os.PathLike, per_family: int = 6) -> Path:
             models.append(inst.model)
             titles.append(f'{name} ({fam.split}) {inst.pose}' + (
                 f', {inst.arrangement}' if inst.arrangement != 'single' else ''))
-    return _render_models(models, titles, out, per_family, 0.36)
+    return _render_models(models, titles, out, cols, 0.36, panel, dpi=80, fontsize=6)
 
 
 def _render_models(models: list[Any], titles: list[str], out: str | os.PathLike, cols: int,
-                   r: float) -> Path:
+                   r: float, panel: float = 2.6, dpi: int = 110, fontsize: int = 8) -> Path:
     """Shaded meshes in a grid, each titled with ``titles`` and its size."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     rows = -(-len(models) // cols)
-    fig = _figure(2.6 * cols, 2.7 * rows)
+    fig = _figure(panel * cols, (panel + 0.1) * rows)
+    fig.set_dpi(dpi)
     light = np.array([0.4, -0.5, 0.77])
     for k, (m, title) in enumerate(zip(models, titles)):
         ax = fig.add_subplot(rows, cols, k + 1, projection='3d')
@@ -157,10 +160,10 @@ def _render_models(models: list[Any], titles: list[str], out: str | os.PathLike,
         ax.set_axis_off()
         dx, dy, dz = m.size
         ax.set_title(f'{title}\n{100 * dx:.0f} x {100 * dy:.0f} x {100 * dz:.0f} cm',
-                     fontsize=8)
+                     fontsize=fontsize)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out)
+    fig.savefig(out, dpi=dpi)
     return out
 
 
