@@ -149,3 +149,29 @@ def test_family_figures_and_the_lofo_table():
     params[2]['family'] = params[3]['family'] = TEST_FAMILIES[0]
     rep = family_report([r1], params, labels, trained_on_synth3={'one': True})
     assert rep['lofo']['obstacle'][TEST_FAMILIES[0]]['model'] == 'one'
+
+
+def test_train_without_a_family_and_evaluate_by_family(small, tmp_path):
+    """The trainer leaves the family out and says so in the model; evaluate --by-family then
+    reports that family in the LOFO table with that model (real training, tiny budget)."""
+    from landing_zone.evaluate import evaluate
+    from landing_zone.model import read_metadata
+    from landing_zone.train import TrainConfig, train
+    ds = SceneDataset(small, 'train')
+    family = Counter(scene_families(ds)['obstacle']).most_common(1)[0][0]
+    out = tmp_path / 'lofo.safetensors'
+    summary = train(small, out, TrainConfig(epochs=1, augment_copies=1, batch_size=4,
+                                            val_fraction=0.25, hold_out=[f'obstacle:{family}']),
+                    progress=False)
+    meta = read_metadata(out)
+    assert meta['training']['hold_out'] == [f'obstacle:{family}']
+    assert meta['datasets'] == ['synth3'] and family in meta['source']
+    kept = int((scene_families(ds)['obstacle'] != family).sum())
+    assert meta['n_train_scenes'] + meta['n_val_scenes'] == kept and summary['samples'] > 0
+    res = evaluate(small, out, split='train', by_family=True, progress=False)
+    fam = res['families']
+    assert set(fam['methods']) == {next(iter(res['methods']))}
+    # The held-out family's scenes are in the split (not in training): judged by this model.
+    n_family = int((scene_families(ds)['obstacle'] == family).sum())
+    assert fam['lofo']['obstacle'][family]['n'] == n_family > 0
+    assert 'Leave one family out' in res['table'] and f'obstacle:{family}' in res['table']
