@@ -39,6 +39,7 @@ app = typer.Typer(
 class DatasetName(str, Enum):
     synth1 = 'synth1'
     synth2 = 'synth2'
+    synth3 = 'synth3'
     hybrid = 'hybrid'
 
 
@@ -122,7 +123,8 @@ def replay(
 # --- insert-obstacles -------------------------------------------------------------------------
 
 @app.command(name='insert-obstacles',
-             help='Insert virtual obstacles of the simulator\'s library into a recorded flight: '
+             help='Insert virtual obstacles of the simulator\'s library or its obstacle families '
+                  'into a recorded flight: '
                   'every return whose ray meets an obstacle first moves onto its surface (plus '
                   'range noise), every other byte of the bag stays as it was. Writes OUT.mcap '
                   'and OUT.labels.json (the flight\'s labels, or its covered tiles as safe, '
@@ -131,6 +133,8 @@ def replay(
                   '--count 6\n\n'
                   '  landing-zone insert-obstacles flight.bag --out h.mcap --region -5 -5 5 5 '
                   '--kinds rock,tire --group train --seed 2\n\n'
+                  '  landing-zone insert-obstacles site.mcap --out f.mcap --families all '
+                  '--count 17\n\n'
                   '  landing-zone insert-obstacles site.mcap --out h.mcap --labels '
                   'site.labels.json --points-topic /points --pose-topic /sensor_pose')
 def insert_obstacles(
@@ -138,9 +142,12 @@ def insert_obstacles(
         help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
     out: Annotated[Path, typer.Option(help='Output bag (.mcap); labels go beside it.')],
     count: Annotated[int, typer.Option(help='Obstacles to insert.')] = 6,
-    kinds: Annotated[str, typer.Option(
-        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box), cycled.')]
-    = 'rock,tire,cinder_block,box',
+    kinds: Annotated[Optional[str], typer.Option(
+        help='Obstacle kinds of the library, comma separated (rock, tire, cinder_block, '
+             'box), cycled [default: all four, unless --families is given].')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families, comma separated (e.g. log,bucket,coil; all, train, test), '
+             'cycled after the kinds: random instances of --group.')] = None,
     group: Annotated[str, typer.Option(
         help='train or test: the obstacle models of that dataset split.')] = 'test',
     region: Annotated[Optional[tuple[float, float, float, float]], typer.Option(
@@ -159,10 +166,13 @@ def insert_obstacles(
     frame_id: Annotated[str, typer.Option(help='The fixed frame of clouds and poses.')] = 'map',
     overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
 ) -> None:
-    from landing_zone.sim.insert import insert_obstacles as run_insert
+    from landing_zone.sim.insert import DEFAULT_KINDS, insert_obstacles as run_insert
 
-    r = run_insert(bag, out, count=count, seed=seed,
-                   kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()), group=group,
+    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
+               else () if families else DEFAULT_KINDS)
+    r = run_insert(bag, out, count=count, seed=seed, kinds=kinds_t,
+                   families=tuple(f.strip() for f in (families or '').split(',') if f.strip()),
+                   group=group,
                    region=region, labels=labels, points_topic=points_topic,
                    pose_topic=pose_topic, frame_id=frame_id, range_sigma=range_noise,
                    overwrite=overwrite)
@@ -222,7 +232,9 @@ class Device(str, Enum):
                   '--workers 15 --cache-voxels 20\n\n'
                   '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
                   '--data synth2_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
-                  'adaptation)')
+                  'adaptation)\n\n'
+                  '  landing-zone train --data data/synth3 --hold-out obstacle:log --out '
+                  'lofo_log.safetensors  (leave one family out)')
 def train(
     data: Annotated[list[Path], typer.Option(
         help='Dataset directory (landing-zone simulate); repeat to train on the train splits '
@@ -261,6 +273,9 @@ def train(
         help='Continue from OUT.train.safetensors if it exists.')] = False,
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec).')] = None,
+    hold_out: Annotated[Optional[list[str]], typer.Option(
+        help='Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
+             'terrain:sloped, sensor:rosette; synth3 data); repeat for more.')] = None,
 ) -> None:
     from landing_zone.judging.checkpoint import read_metadata
     from landing_zone.judging.net import DEFAULT_SPEC
@@ -274,7 +289,7 @@ def train(
                       val_fraction=val_fraction, workers=workers, seed=seed,
                       device=device.value, dropout=dropout, cache_voxels=cache_voxels,
                       edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,
-                      precision=precision)
+                      precision=precision, hold_out=list(hold_out or []))
     s = run_train(data, out, cfg, resume=resume, init=init)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
@@ -321,7 +336,9 @@ class Split(str, Enum):
                   'model.safetensors --out-dir eval\n\n'
                   '  landing-zone evaluate --data data/synth2 --baselines --json results.json'
                   '\n\n  landing-zone evaluate --data data/synth2 --model a.safetensors --model '
-                  'b.safetensors --baselines')
+                  'b.safetensors --baselines\n\n'
+                  '  landing-zone evaluate --data data/synth3 --by-family --model '
+                  'final.safetensors --model lofo_log.safetensors --json lofo.json')
 def evaluate(
     data: Annotated[Path, typer.Option(help='Dataset directory.')],
     model: Annotated[Optional[list[Path]], typer.Option(
@@ -338,12 +355,16 @@ def evaluate(
     max_scenes: Annotated[int, typer.Option(
         help='Evaluate an even subset of this many scenes (0: all).')] = 0,
     seed: Annotated[int, typer.Option(help='Seed of the baselines.')] = 0,
+    by_family: Annotated[bool, typer.Option(
+        help='synth3: the figures per obstacle, vegetation, terrain and sensor family, and '
+             'the leave-one-family-out table (each family judged by a --model that never '
+             'saw it).')] = False,
 ) -> None:
     from landing_zone.learn.evaluate import evaluate as run_evaluate
 
     res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
                        split=split.value, workers=workers, fit_scenes=fit_scenes,
-                       max_scenes=max_scenes, seed=seed)
+                       max_scenes=max_scenes, seed=seed, by_family=by_family)
     print(res['table'], end='')
 
 
@@ -424,16 +445,24 @@ _KINDS = 'rock,tire,cinder_block,box'
                   '  landing-zone simulate-flight --out big.mcap --size 40 --obstacles 12 '
                   '--kinds rock,tire --grass-density 1200 --seed 3\n\n'
                   '  landing-zone simulate-flight --out v.mcap --vegetation mixed '
-                  '--scan-pattern spinning --density 2000')
+                  '--scan-pattern spinning --density 2000\n\n'
+                  '  landing-zone simulate-flight --out f.mcap --families test --obstacles 8 '
+                  '--vegetation lodged --slope 10 --scan-pattern elliptical --height 15')
 def simulate_flight(
     out: Annotated[Path, typer.Option(help='SITE.mcap to write.')],
     size: Annotated[float, typer.Option(help='Edge of the square site [m].')] = 20.0,
     obstacles: Annotated[int, typer.Option(help='Number of obstacles.')] = 6,
-    kinds: Annotated[str, typer.Option(
-        help='Obstacle kinds, comma separated (rock, tire, cinder_block, box).')] = _KINDS,
+    kinds: Annotated[Optional[str], typer.Option(
+        help='Obstacle kinds of the library, comma separated (rock, tire, cinder_block, box) '
+             '[default: all four, unless --families is given].')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families, comma separated (rock, slab, rubble, log, stump, brush, box, '
+             'crate, bucket, pipe, tire, cinder_block, post, cone, coil, pallet, sack; or all, '
+             'train, test): random test instances, cycled after the kinds.')] = None,
     vegetation: Annotated[str, typer.Option(
         help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
-             'mixed.')] = 'default',
+             'mixed; or a vegetation family of synth3: uniform, tussock, lodged, layered, '
+             'bare (gravel), shrub.')] = 'default',
     grass_density: Annotated[Optional[float], typer.Option(
         help='Blades per m^2 of a typical patch [default: 600].')] = None,
     grass_height: Annotated[Optional[float], typer.Option(
@@ -451,8 +480,14 @@ def simulate_flight(
         help='Shrubs per m^2 (0.2-0.4 m high, 0.3-0.6 m across).')] = None,
     scan_pattern: Annotated[str, typer.Option(
         help='Scanner: line (the default nodding line scanner), spinning (16 beams), '
-             'rosette.')] = 'line',
+             'rosette, elliptical (a nutating mirror\'s 40 degree cone).')] = 'line',
     height: Annotated[float, typer.Option(help='Flight height above the ground [m].')] = 8.0,
+    slope: Annotated[float, typer.Option(
+        help='The site lies on a plane this steep [deg].')] = 0.0,
+    slope_azimuth: Annotated[float, typer.Option(
+        help='... rising towards this direction [deg from x].')] = 0.0,
+    roughness: Annotated[Optional[float], typer.Option(
+        help='Amplitude of the ground\'s bumps [m] [default: 0.05].')] = None,
     tilt: Annotated[Optional[float], typer.Option(
         help='Forward tilt of the scan\'s centre from the nadir [deg] [default: 45, rosette '
              '20].')] = None,
@@ -467,9 +502,15 @@ def simulate_flight(
 ) -> None:
     from landing_zone.sim.flight import flight_config, simulate_flight as run_flight
 
+    import math
+
+    fams = tuple(f.strip() for f in (families or '').split(',') if f.strip())
+    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
+               else () if fams else tuple(_KINDS.split(',')))
     cfg = flight_config(vegetation, scan_pattern, density=density, size=size,
-                        obstacles=obstacles,
-                        kinds=tuple(k.strip() for k in kinds.split(',') if k.strip()),
+                        obstacles=obstacles, kinds=kinds_t, families=fams,
+                        slope=slope, slope_azimuth=math.radians(slope_azimuth),
+                        amplitude=roughness,
                         grass_density=grass_density, grass_height=grass_height,
                         clump_size=clump_size, clump_radius=clump_radius,
                         inclination_std=lean, max_height=max_grass_height,
@@ -507,18 +548,24 @@ def render(
                   'flight, assess it with the shipped model, print the tile map, the AUC '
                   'against the ground truth, and write a PNG and a report.\n\n'
                   'Examples:\n\n  landing-zone demo\n\n'
-                  '  landing-zone demo --out-dir /tmp/lz --seed 3')
+                  '  landing-zone demo --out-dir /tmp/lz --seed 3\n\n'
+                  '  landing-zone demo --families test  (obstacles the shipped model never '
+                  'saw)')
 def demo(
     out_dir: Annotated[Path, typer.Option(help='Where the bags, report and PNG go.')]
     = Path('lz_demo'),
     seed: Annotated[int, typer.Option(help='Seed of the simulated site and flight.')] = 0,
     model: Annotated[Optional[Path], typer.Option(
         help='Model file; default the shipped one.')] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='Obstacle families whose test instances join the site (comma separated; all, '
+             'train, test), one obstacle each.')] = None,
 ) -> None:
     from landing_zone.demo import run_demo
+    from landing_zone.sim.families import parse_families
 
     t0 = time.perf_counter()
-    run_demo(out_dir, seed=seed, model=model)
+    run_demo(out_dir, seed=seed, model=model, families=parse_families(families or ''))
     print(f'demo done in {time.perf_counter() - t0:.0f} s')
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -95,7 +95,8 @@ def tile_map(assessment: Assessment, labels: dict[str, Any] | None = None) -> Te
 
 def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
              model: str | os.PathLike[str] | None = None,
-             console: Console | None = None) -> DemoResult:
+             console: Console | None = None, families: tuple[str, ...] = ()
+             ) -> DemoResult:
     """Simulate, replay, print; see the module docstring.
 
     Args:
@@ -103,6 +104,8 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
         seed: the simulator's seed (same seed, same site and flight).
         model: model file; default the shipped model.
         console: where to print (default a new rich Console).
+        families: obstacle families (:mod:`landing_zone.sim.families`) whose test instances
+            join the site's obstacles, one more obstacle each (default: the library's six).
 
     Raises:
         ModelError: no model (none shipped and none given).
@@ -123,7 +126,13 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
 
     t0 = time.perf_counter()
     with console.status('simulating the flight ...'):
-        flight = simulate_flight(FlightConfig(seed=seed), out / 'site.mcap', overwrite=True)
+        cfg = FlightConfig(seed=seed)
+        if families:
+            # The library's kinds and then the families, one obstacle each of the families
+            # more than the default's six.
+            cfg = replace(cfg, families=tuple(families),
+                          obstacles=cfg.obstacles + len(families))
+        flight = simulate_flight(cfg, out / 'site.mcap', overwrite=True)
     seconds['simulate'] = time.perf_counter() - t0
     labels = read_labels(flight.labels)
     lo, hi = np.asarray(labels['site']['lo']), np.asarray(labels['site']['hi'])

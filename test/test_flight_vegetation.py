@@ -272,7 +272,8 @@ def test_bushes_are_soft_vegetation_on_safe_tiles(flights, tmp_path):
 
 # --- scan patterns ----------------------------------------------------------------------------
 
-@pytest.mark.parametrize('pattern,more', [('spinning', {}), ('rosette', {'max_speed': 30.0})])
+@pytest.mark.parametrize('pattern,more', [('spinning', {}), ('rosette', {'max_speed': 30.0}),
+                                          ('elliptical', {'max_speed': 30.0})])
 def test_other_scanners_meet_the_density_and_look_differently(flights, pattern, more):
     result, labels, pts, lab, org = flights('default', pattern, **more)
     _, _, pts0, _, org0 = flights()
@@ -298,6 +299,11 @@ def test_other_scanners_meet_the_density_and_look_differently(flights, pattern, 
     if pattern == 'spinning':
         assert np.std(a) > 6.0 and np.median(a) == pytest.approx(45.0, abs=6.0)
         assert np.quantile(a, 0.95) - np.quantile(a, 0.05) > 20.0
+    elif pattern == 'elliptical':
+        # A 40 degree cone about an axis 15 degrees forward: the ellipse's front and back arcs
+        # see the ground from 35 and 5 degrees (its sides from between).
+        assert np.quantile(a, 0.95) == pytest.approx(35.0, abs=3.0)
+        assert np.quantile(a, 0.02) < 12.0 and np.std(a) > 6.0
     else:
         assert np.median(a) == pytest.approx(20.0, abs=6.0) and np.std(a) > 8.0
         # The rosette piles its returns up in petals: far from uniform over the site.
@@ -321,6 +327,10 @@ def test_scan_pattern_geometry():
                                atol=1e-6)
     az = np.arctan2(d[:, 1], d[:, 0])
     assert np.ptp(az) > 6.2  # the full circle
+    ell = ScanPattern(kind='elliptical', fov=40.0, spin_rate=25.0)
+    d = ell.local_directions(np.arange(4000) / 100_000.0, np.arange(4000))  # one turn
+    np.testing.assert_allclose(np.degrees(np.arccos(d[:, 0])), 20.0, atol=1e-9)
+    assert np.ptp(np.arctan2(d[:, 2], d[:, 1])) > 6.2
     rose = ScanPattern(kind='rosette', fov=70.0)
     d = rose.local_directions(np.arange(100_000) / 100_000.0, np.arange(100_000))
     off = np.degrees(np.arccos(np.clip(d[:, 0], -1, 1)))
@@ -334,7 +344,7 @@ def test_scan_pattern_geometry():
 
 def test_presets_and_overrides():
     assert set(VEGETATION) == {'default', 'clumped', 'tall', 'bushy', 'mixed'}
-    assert set(SCAN) == {'line', 'spinning', 'rosette'}
+    assert set(SCAN) == {'line', 'spinning', 'rosette', 'elliptical'}
     assert flight_config() == FlightConfig()
     cfg = flight_config('tall', 'rosette', density=1500.0, grass_height=0.3, clump_size=20.0,
                         tilt=None)

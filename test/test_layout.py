@@ -24,6 +24,7 @@ LONG = {
     'landing_zone.cli': 'the one typer command line',
     'landing_zone.sim.sensor': 'the scanner: patterns, nodding, noise, scans',
     'landing_zone.sim.flight': 'a simulated flight: its site, path and bag',
+    'landing_zone.sim.families': 'the catalogue of obstacle families, one generator each',
 }
 
 

@@ -187,7 +187,7 @@ def test_incomplete_or_missing_dataset_is_an_error(tmp_path):
 
 
 @pytest.mark.parametrize('kwargs,match', [
-    ({'dataset': 'synth3'}, 'unknown dataset'),
+    ({'dataset': 'synth9'}, 'unknown dataset'),
     ({'scenes': 0}, 'scenes'),
     ({'seed': -1}, 'seed'),
     ({'workers': 0}, 'workers'),

@@ -195,13 +195,14 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
 
     Args:
         hits: (X, Y, Z) hit counts of a box of the global voxel lattice (as
-            :meth:`~landing_zone.density_map.DensityMap.counts` returns them).
+            :meth:`~landing_zone.mapping.density_map.DensityMap.counts` returns them).
         passes: same shape, the pass counts.
         lo: (3,) global voxel index of the box's lower corner.
         voxel_size: edge of a voxel [m].
         tiles: (T, 2) global tile indices.
         ground_z: (T,) the tiles' ground estimates [m] (centre of the ground voxel, as
-            :class:`~landing_zone.tiles.TileBatch` gives them); NaN: no ground, never fires.
+            :class:`~landing_zone.judging.tiles.TileBatch` gives them); NaN: no ground, never
+            fires.
         tile_vox: voxels per tile side.
         config: the guard's thresholds.
 

@@ -180,7 +180,8 @@ def evaluate(data: str | os.PathLike,
              baselines: bool = False, json_path: str | os.PathLike | None = None,
              out_dir: str | os.PathLike | None = None, split: str = 'test', workers: int = 0,
              fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
-             precision: str = 'auto', progress: bool = True) -> dict[str, Any]:
+             precision: str = 'auto', progress: bool = True, by_family: bool = False
+             ) -> dict[str, Any]:
     """Evaluate the CNN (and with ``baselines`` the paper's baselines) on a dataset split.
 
     Args:
@@ -199,6 +200,9 @@ def evaluate(data: str | os.PathLike,
         seed: seed of the baselines.
         precision: CNN inference precision ('auto', 'fp32', 'bf16').
         progress: progress and messages on stderr.
+        by_family: also the figures per family and the leave-one-family-out table
+            (:mod:`landing_zone.learn.lofo`; synth3 data): RESULTS.json gains 'families', the table
+            the family tables.
 
     Returns:
         The RESULTS.json dictionary, plus 'table' (markdown).
@@ -220,7 +224,8 @@ def evaluate(data: str | os.PathLike,
     name = str(ds.meta.get('dataset', Path(data).name))
     train_source = SceneDataset(data, 'train') if baselines else None
     return evaluate_scenes(ds, name, split, model, baselines, train_source, json_path, out_dir,
-                           workers, fit_scenes, max_scenes, seed, precision, progress)
+                           workers, fit_scenes, max_scenes, seed, precision, progress,
+                           by_family=by_family)
 
 
 def evaluate_scenes(source: Any, dataset: str, split: str,
@@ -230,7 +235,8 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
                     out_dir: str | os.PathLike | None = None, workers: int = 0,
                     fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
                     precision: str = 'auto', progress: bool = False,
-                    extra_methods: list[Any] | None = None) -> dict[str, Any]:
+                    extra_methods: list[Any] | None = None, by_family: bool = False
+                    ) -> dict[str, Any]:
     """:func:`evaluate` on any sequence of scenes (``len``, ``[i] -> Scene``).
 
     Args:
@@ -250,9 +256,11 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     paths = [] if model is None else [model] if isinstance(model, (str, os.PathLike)) \
         else list(model)
     cnns: list[tuple[CNNMethod, tuple]] = []
+    metas: list[dict[str, Any]] = []
     for path in paths:
         net, meta = load_model(path, 'cpu')
         cnns.append((CNNMethod(net, precision=precision), _voxel_key(meta)))
+        metas.append(meta)
     _unique_names([c for c, _ in cnns], paths)
     key0 = cnns[0][1] if cnns else _voxel_key({})
     mcfg, tcfg = _configs(key0)
@@ -299,6 +307,10 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     n, n_unsafe = len(y), int((y == 0).sum())
     table = markdown_table(results, dataset, split, n, n_unsafe)
     out = results_json(results, dataset, split, n, n_unsafe)
+    if by_family:
+        from landing_zone.learn.lofo import family_report_for, markdown_families
+        out['families'] = family_report_for(results, pack.params, y, metas)
+        table += '\n' + markdown_families(out['families'])
     if json_path is not None:
         p = Path(json_path)
         p.parent.mkdir(parents=True, exist_ok=True)

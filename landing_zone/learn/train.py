@@ -83,6 +83,8 @@ class TrainConfig:
     cache_voxels: int = 0  # >0: pre-voxelize this many augmented copies per scene once
     # 'auto': bf16 autocast on CUDA for batches of 64 or more, else fp32; 'fp32'; 'bf16'
     precision: str = 'auto'
+    # families left out of the training scenes, 'AXIS:FAMILY' (synth3; see landing_zone.learn.lofo)
+    hold_out: list[str] = field(default_factory=list)
 
     def validate(self) -> None:
         SafetyNetConfig(self.arch, dropout=self.dropout).validate()
@@ -109,6 +111,8 @@ class TrainConfig:
             raise ConfigError(f"device must be 'cpu' or 'cuda[:N]', got {self.device!r}")
         if self.device.startswith('cuda') and not torch.cuda.is_available():
             raise ConfigError(f'device {self.device!r} asked for, but CUDA is not available')
+        from landing_zone.learn.lofo import parse_hold_out
+        parse_hold_out(self.hold_out)
 
 
 # Fields that must match for --resume to continue a run (epochs may grow; workers, device,
@@ -116,7 +120,7 @@ class TrainConfig:
 # the floating-point results).
 _RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment_copies',
                 'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift', 'yaw',
-                'cache_voxels', 'edge_drop')
+                'cache_voxels', 'edge_drop', 'hold_out')
 
 # -----------------------------------------------------------------------------------------------
 # the loop
@@ -203,6 +207,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
 
     # the data: validation scenes held out by scene, per class
     source, source_name = open_source(data)
+    if cfg.hold_out:
+        from landing_zone.learn.lofo import hold_out
+        source = hold_out(source, cfg.hold_out)
+        source_name += f' without {", ".join(cfg.hold_out)}'
     labels = labels_of(source)
     if len(labels) < 2:
         raise DatasetError(f'{source_name}: at least 2 training scenes needed, got '
@@ -268,8 +276,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     loader = None if cache is not None else make_loader(
         vol_ds, sampler, cfg.batch_size, cfg.workers, pin_memory=device.type == 'cuda')
 
+    from landing_zone.learn.lofo import dataset_names
     meta_common = {'voxel_size': mcfg.voxel_size, 'tiles': asdict(tcfg), 'training':
                    asdict(cfg), 'seed': cfg.seed, 'source': source_name,
+                   'datasets': dataset_names(source),
                    'n_train_scenes': len(d.train), 'n_val_scenes': len(d.val)}
     last_ckpt = time.monotonic()
 

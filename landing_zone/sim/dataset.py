@@ -100,9 +100,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
     """Generate (or finish generating) a dataset directory.
 
     Args:
-        dataset: ``synth1`` or ``synth2``.
+        dataset: ``synth1``, ``synth2`` or ``synth3`` (:mod:`landing_zone.sim.synth3`).
         out: directory (created; a rerun with the same arguments resumes).
-        scenes: subsample the sweep evenly to this many scenes (None: the whole sweep).
+        scenes: subsample the sweep evenly to this many scenes (None: the whole sweep); for
+            synth3 the first this many (None: its default size).
         workers: processes (None: one per core; 1: in this process). Workers are forked;
             if this process has already cast rays (Embree's threads must not be forked), they
             are spawned, which needs the calling script's code under
@@ -119,16 +120,22 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         SimulationError: bad arguments (before any work).
         DatasetError: ``out`` holds a different dataset.
     """
-    get_sweep(dataset)
+    if dataset != 'synth3':
+        get_sweep(dataset)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
     if workers is not None and (not isinstance(workers, (int, np.integer)) or workers < 1):
         raise SimulationError(f'workers must be a positive integer, got {workers!r}')
     if not isinstance(shard_size, (int, np.integer)) or shard_size < 1:
         raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
-    selected = select_scenes(dataset, scenes, split)
+    if dataset == 'synth3':
+        from landing_zone.sim import synth3
+        selected = synth3.select_scenes(scenes, split)
+        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected)
+    else:
+        selected = select_scenes(dataset, scenes, split)
+        meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
     out = Path(out)
-    meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
     meta_path = out / 'meta.json'
     prepare_output(out, meta, _plan_key)
 

@@ -49,11 +49,13 @@ from landing_zone.sim.grass import (VEGETATION_PRESETS, Bush, GrassConfig, Veget
                                     _poisson_blades, bush_mesh, grass_mesh, place_bushes,
                                     vegetation_blades)
 from landing_zone.sim.mesh import Mesh
-from landing_zone.sim.obstacles import KINDS, Obstacle, models, place
+from landing_zone.sim.families import draw_instance, keep_visible, parse_families
+from landing_zone.sim.obstacles import Obstacle, models, place
 from landing_zone.sim.scene import World
 from landing_zone.sim.sensor import (SCAN_PATTERNS, BrownianWalk, Returns, ScanPattern,
                                      SensorConfig, mount_frame, path_scan)
-from landing_zone.sim.terrain import PerlinNoise, Terrain, TerrainConfig
+from landing_zone.sim.terrain import PerlinNoise, SlopedTerrain, Terrain, TerrainConfig
+from landing_zone.sim.vegetation import VEGETATION_FAMILIES, build_vegetation, draw_vegetation
 
 __all__ = ['FlightConfig', 'Site', 'FlightResult', 'build_site', 'simulate_flight',
            'tile_labels', 'polygon_overlaps_square', 'START_TIME_NS', 'flight_config',
@@ -89,6 +91,9 @@ SCAN: dict[str, dict[str, Any]] = {
     # crowd into a narrow swath: at the line scanner's rate the speed for the target density
     # would exceed max_speed).
     'rosette': {'tilt': 20.0, 'fov': 70.0, 'prr': 100_000.0},
+    # A nutating-mirror scanner tracing a 40 degree cone 25 times a second, its axis 15 degrees
+    # ahead of the nadir: an ellipse on the ground, 100 000 points/s.
+    'elliptical': {'tilt': 15.0, 'fov': 40.0, 'spin_rate': 25.0, 'prr': 100_000.0},
 }
 assert tuple(VEGETATION) == VEGETATION_PRESETS and tuple(SCAN) == SCAN_PATTERNS
 
@@ -116,6 +121,14 @@ class FlightConfig:
     vegetation: VegetationConfig = field(default_factory=VegetationConfig)
     scan: ScanPattern = field(default_factory=ScanPattern)
     line_spacing: float | None = None  # [m] between passes; None: from the scanner's swath
+    # obstacle families (landing_zone.sim.families), cycled through after the kinds: random
+    # test instances
+    families: tuple[str, ...] = ()
+    slope: float = 0.0  # the site lies on a plane this steep [deg] ...
+    slope_azimuth: float = 0.0  # ... rising towards this direction [rad]
+    # a vegetation family of the datasets (landing_zone.sim.vegetation) instead of the preset's
+    # blades: its parameters drawn from the seed, thinned by the site's patches
+    vegetation_family: str | None = None
 
     def validate(self) -> None:
         """Raise :class:`SimulationError` naming the first nonsensical parameter."""
@@ -144,12 +157,17 @@ class FlightConfig:
         if not isinstance(self.seed, int) or self.seed < 0:
             raise SimulationError(f'flight seed must be a non-negative integer, got '
                                   f'{self.seed!r}')
-        if self.obstacles and not self.kinds:
-            raise SimulationError('flight kinds must name at least one obstacle kind')
-        unknown = [k for k in self.kinds if k not in KINDS]
-        if unknown:
-            raise SimulationError(f'unknown obstacle kind {unknown[0]!r}; choose from '
-                                  f'{", ".join(KINDS)}')
+        if self.obstacles and not self.kinds and not self.families:
+            raise SimulationError('flight kinds must name at least one obstacle kind or '
+                                  'family')
+        models(tuple(self.kinds))  # unknown kinds fail here
+        parse_families(self.families)
+        finite('slope', 0.0, 30.0)
+        finite('slope_azimuth', -10.0, 10.0)
+        if self.vegetation_family is not None and \
+                self.vegetation_family not in VEGETATION_FAMILIES:
+            raise SimulationError(f'unknown vegetation family {self.vegetation_family!r}; '
+                                  f'choose from {", ".join(VEGETATION_FAMILIES)}')
         # Obstacles sit at least 1 m inside the site, 1.5 m apart: a loose packing bound.
         inner = self.size - 2.0
         capacity = int((inner / _MIN_SEPARATION + 1) ** 2 * 0.5)
@@ -166,6 +184,7 @@ class FlightConfig:
     def to_json(self) -> dict:
         out = asdict(self)
         out['kinds'] = list(self.kinds)
+        out['families'] = list(self.families)
         out['vegetation'] = self.vegetation.to_dict()
         out['scan'] = self.scan.to_dict()
         return out
@@ -176,12 +195,13 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
     """A :class:`FlightConfig` from a vegetation and a scan-pattern preset, then overrides.
 
     Args:
-        vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of grass).
+        vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of
+            grass) or a vegetation family of synth3 (:data:`VEGETATION_FAMILIES`).
         scan_pattern: one of :data:`SCAN`.
         density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
         **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,
-            :class:`ScanPattern` or :class:`SensorConfig`; a value of None leaves the preset's
-            (or the default) value.
+            :class:`ScanPattern` or :class:`SensorConfig`, or the terrain's ``amplitude`` and
+            ``wavelength``; a value of None leaves the preset's (or the default) value.
 
     Returns:
         The configuration (not yet validated: :func:`simulate_flight` does that).
@@ -189,9 +209,13 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
     Raises:
         SimulationError: an unknown preset or field.
     """
+    family = None
+    if vegetation in VEGETATION_FAMILIES and vegetation not in VEGETATION:
+        family, vegetation = vegetation, 'default'
     if vegetation not in VEGETATION:
         raise SimulationError(f'unknown vegetation {vegetation!r}; choose from '
-                              f'{", ".join(VEGETATION)}')
+                              f'{", ".join(VEGETATION)} or a family: '
+                              f'{", ".join(VEGETATION_FAMILIES)}')
     if scan_pattern not in SCAN:
         raise SimulationError(f'unknown scan pattern {scan_pattern!r}; choose from '
                               f'{", ".join(SCAN)}')
@@ -199,11 +223,15 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
     veg_fields = {f.name for f in fields(VegetationConfig)} - {'preset'}
     scan_fields = {f.name for f in fields(ScanPattern)} - {'kind'}
     sensor_fields = {f.name for f in fields(SensorConfig)}
+    terrain_fields = {'amplitude', 'wavelength'}  # roughness of the ground
     settings = {**VEGETATION[vegetation], **SCAN[scan_pattern],
                 **{k: v for k, v in overrides.items() if v is not None}}
     if density is not None:
         settings['target_density'] = density
-    unknown = sorted(set(settings) - flight_fields - veg_fields - scan_fields - sensor_fields)
+    if family is not None:
+        settings['vegetation_family'] = family
+    unknown = sorted(set(settings) - flight_fields - veg_fields - scan_fields - sensor_fields
+                     - terrain_fields)
     if unknown:
         raise SimulationError(f'unknown flight setting {unknown[0]!r}')
     cfg = FlightConfig(
@@ -213,6 +241,9 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
                                                if k in scan_fields}),
         **{k: v for k, v in settings.items() if k in flight_fields})
     sensor = {k: v for k, v in settings.items() if k in sensor_fields}
+    terrain = {k: v for k, v in settings.items() if k in terrain_fields}
+    if terrain:
+        cfg = replace(cfg, terrain=replace(cfg.terrain, **terrain))
     return replace(cfg, sensor=replace(cfg.sensor, **sensor)) if sensor else cfg
 
 
@@ -225,6 +256,7 @@ class Site:
     lo: np.ndarray  # (2,) site corner [m]
     hi: np.ndarray  # (2,)
     bushes: list[Bush] = field(default_factory=list)
+    vegetation_params: dict[str, Any] | None = None  # a vegetation family's drawn parameters
 
     @property
     def obstacles(self) -> list[Obstacle]:
@@ -303,7 +335,12 @@ def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0)
     """
     half = 0.5 * config.size
     lo, hi = np.array([-half, -half]), np.array([half, half])
-    terrain = Terrain(config.terrain, rng, lo - config.margin, hi + config.margin)
+    if config.slope > 0:
+        terrain: Terrain = SlopedTerrain(config.terrain, rng, lo - config.margin,
+                                         hi + config.margin, config.slope,
+                                         config.slope_azimuth)
+    else:
+        terrain = Terrain(config.terrain, rng, lo - config.margin, hi + config.margin)
     # Patches: one noise field shapes where grass grows and how dense, another its height.
     patches = PerlinNoise(rng, wavelength=7.0, octaves=2)
     tallness = PerlinNoise(rng, wavelength=5.0, octaves=1)
@@ -320,7 +357,8 @@ def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0)
     region = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
     region = region + np.sign(region) * min(config.margin, 1.0)
     veg = config.vegetation
-    if veg.plain:
+    site_veg = None
+    if veg.plain and config.vegetation_family is None:
         grass = grass_mesh(grass_cfg, terrain, rng, region, density_scale, height_scale)
         obstacles = _place_obstacles(config, terrain, rng, lo, hi)
         bushes: list[Bush] = []
@@ -333,25 +371,40 @@ def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0)
         def veg_height_scale(x: np.ndarray, y: np.ndarray) -> np.ndarray:
             return np.clip(1.0 + veg.height_variation * tallness(x, y), 0.4, 1.6)
 
-        blades = vegetation_blades(veg, 2.0 * config.grass_density, g, terrain, vrng, region,
-                                   density_scale, veg_height_scale)
         keep_out = [(o.x, o.y, o.model.radius + 0.1) for o in obstacles]
-        bushes = (place_bushes(veg, terrain, vrng, region, keep_out)
-                  if veg.bush_density > 0 else [])
-        grass = Mesh.concat([blades, bush_mesh(veg, bushes, vrng)])
+        if config.vegetation_family is not None:
+            # The family's own densities and heights, in the site's patches and clearings
+            # (its density field thins them: a typical patch keeps half, as the default's).
+            params = draw_vegetation(config.vegetation_family, vrng)
+            blades, cover, bushes = build_vegetation(
+                params, terrain, vrng, region, keep_out,
+                density_scale=lambda x, y: np.clip(2.0 * density_scale(x, y), 0.0, 1.0),
+                height_scale=veg_height_scale)
+            grass = Mesh.concat([blades, cover])
+            site_veg = params
+        else:
+            blades = vegetation_blades(veg, 2.0 * config.grass_density, g, terrain, vrng,
+                                       region, density_scale, veg_height_scale)
+            bushes = (place_bushes(veg, terrain, vrng, region, keep_out)
+                      if veg.bush_density > 0 else [])
+            grass = Mesh.concat([blades, bush_mesh(veg, bushes, vrng)])
     world = World(terrain, grass, obstacles)
     world.caster(threads)
-    return Site(config, world, lo, hi, bushes)
+    return Site(config, world, lo, hi, bushes, site_veg)
 
 
 def _place_obstacles(config: FlightConfig, terrain: Terrain, rng: np.random.Generator,
                      lo: np.ndarray, hi: np.ndarray) -> list[Obstacle]:
     out: list[Obstacle] = []
     centres: list[np.ndarray] = []
+    entries = tuple(config.kinds) + parse_families(config.families)
     for i in range(config.obstacles):
-        kind = config.kinds[i % len(config.kinds)]
-        choices = sorted(models((kind,)), key=lambda m: m.name)
-        model = choices[int(rng.integers(len(choices)))]
+        entry = entries[i % len(entries)]
+        if i % len(entries) < len(config.kinds):
+            choices = sorted(models((entry,)), key=lambda m: m.name)
+            model = choices[int(rng.integers(len(choices)))]
+        else:  # a family: a random test instance
+            model = draw_instance(entry, None, rng).model
         for _ in range(10_000):
             c = rng.uniform(lo + 1.0, hi - 1.0)
             if all(np.hypot(*(c - o)) >= _MIN_SEPARATION for o in centres):
@@ -360,8 +413,9 @@ def _place_obstacles(config: FlightConfig, terrain: Terrain, rng: np.random.Gene
             raise SimulationError(f'could not place {config.obstacles} obstacles '
                                   f'{_MIN_SEPARATION} m apart on the site')
         centres.append(c)
-        out.append(place(model, float(c[0]), float(c[1]), float(rng.uniform(0, 2 * np.pi)),
-                         terrain))
+        ob = place(model, float(c[0]), float(c[1]), float(rng.uniform(0, 2 * np.pi)), terrain)
+        out.append(keep_visible(ob, terrain) if config.slope or i % len(entries) >= len(
+            config.kinds) else ob)
     return out
 
 
@@ -584,7 +638,11 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
               'obstacles': [o.to_json() for o in site.obstacles],
               'site': {'lo': site.lo.tolist(), 'hi': site.hi.tolist(),
                        'vegetation': config.vegetation.to_dict(),
-                       'scan_pattern': config.scan.to_dict()},
+                       'scan_pattern': config.scan.to_dict(),
+                       **({'vegetation_family': site.vegetation_params}
+                          if site.vegetation_params is not None else {}),
+                       **({'slope': config.slope, 'slope_azimuth': config.slope_azimuth}
+                          if config.slope else {})},
               'bushes': [b.to_json() for b in site.bushes],
               'flight': config.to_json() | {'speed': speed, 'passes': passes.tolist()}}
     write_labels(labels_path, labels)

@@ -145,6 +145,7 @@ def update_labels(labels: dict[str, Any] | None, obstacles: Sequence[Obstacle],
 
 def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *,
                      count: int = 6, seed: int = 0, kinds: Sequence[str] = DEFAULT_KINDS,
+                     families: Sequence[str] = (),
                      group: str = 'test', region: Sequence[float] | None = None,
                      labels: str | os.PathLike[str] | None = None,
                      obstacles: Sequence[Obstacle] | None = None,
@@ -159,6 +160,7 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
         count: obstacles to insert.
         seed: of the placement and the range noise.
         kinds: obstacle kinds, cycled through.
+        families: obstacle families, cycled through after the kinds (random instances).
         group: ``train`` or ``test`` obstacle models (as the datasets split them).
         region: ``(x0, y0, x1, y1)`` where obstacles may stand.
         labels: SITE.labels.json of the flight (default ``BAG.labels.json`` beside the bag if
@@ -203,6 +205,8 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     if group not in ('train', 'test'):
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     models(tuple(kinds), group)  # unknown kinds fail here, before any reading
+    from landing_zone.sim.families import parse_families
+    families = parse_families(tuple(families))
     labels_in = Path(labels) if labels is not None else labels_path_for(bag)
     if labels is not None and not labels_in.exists():
         raise ConfigError(f'labels file not found: {labels_in}')
@@ -218,11 +222,12 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     seeds = np.random.SeedSequence([int(seed), 0x1E5E47]).spawn(2)
     if obstacles is None:
         placed = place_obstacles(points, count, np.random.default_rng(seeds[0]), kinds=kinds,
-                                 group=group, region=region, labels=doc)
+                                 group=group, region=region, labels=doc, families=families)
     else:
         placed = list(obstacles)
     scene = ObstacleScene(placed, threads=threads)
     extra = {'source': bag.name, 'seed': int(seed), 'group': group, 'kinds': list(kinds),
+             **({'families': list(families)} if families else {}),
              'count': len(placed), 'range_sigma': range_sigma,
              'region': list(map(float, region)) if region is not None else None,
              'sink': SINK}

@@ -152,26 +152,11 @@ def _box(edge: float = 0.15) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rock(index: int) -> tuple[np.ndarray, np.ndarray]:
-    import trimesh
+    from landing_zone.sim.shapes import flatten_bed, noisy_hull
     rng = np.random.default_rng(20150526 + 7919 * index)
     height, proportions = _ROCKS[index]
-    axes = np.asarray(proportions, dtype=float)
-    n = int(rng.integers(24, 60))
-    dirs = rng.standard_normal((n, 3))
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    pts = dirs * axes * rng.uniform(0.75, 1.15, (n, 1))
-    hull = trimesh.convex.convex_hull(pts)
-    v, f = trimesh.remesh.subdivide(np.asarray(hull.vertices), np.asarray(hull.faces))
-    centre = v.mean(axis=0)
-    n_hull = len(hull.vertices)
-    # New (edge midpoint) vertices move inwards: dents between the hull's corners.
-    dent = np.ones(len(v))
-    dent[n_hull:] = 1.0 - rng.uniform(0.0, 0.12, len(v) - n_hull)
-    v = centre + (v - centre) * dent[:, None]
-    # Rocks settle on a flattish bed: the lowest fifth of the height is squashed.
-    z0, z1 = v[:, 2].min(), v[:, 2].max()
-    bed = z0 + 0.2 * (z1 - z0)
-    v[:, 2] = np.where(v[:, 2] < bed, bed - 0.25 * (bed - v[:, 2]), v[:, 2])
+    v, f = noisy_hull(rng, proportions)
+    v = flatten_bed(v)  # rocks settle on a flattish bed
     # A random yaw of the shape itself, so the rocks' long axes do not all lie along x.
     yaw = rng.uniform(0.0, np.pi)
     c, s = math.cos(yaw), math.sin(yaw)
@@ -248,8 +233,11 @@ def models(kinds: tuple[str, ...] | list[str] | None = None,
     if kinds is not None:
         unknown = [k for k in kinds if k not in KINDS]
         if unknown:
+            from landing_zone.sim.families import FAMILIES
+            hint = (f' ({unknown[0]!r} is an obstacle family: give it as a family, e.g. '
+                    f'--families {unknown[0]})' if unknown[0] in FAMILIES else '')
             raise SimulationError(f'unknown obstacle kind {unknown[0]!r}; choose from '
-                                  f'{", ".join(KINDS)}')
+                                  f'{", ".join(KINDS)}{hint}')
     if group not in (None, 'train', 'test'):
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     return [m for m in library().values()
@@ -258,8 +246,13 @@ def models(kinds: tuple[str, ...] | list[str] | None = None,
 
 
 def get_model(name: str) -> ObstacleModel:
-    """The model called ``name``."""
+    """The model called ``name``: a library model or an obstacle family's instance
+    (``FAMILY/INDEX``, see :mod:`landing_zone.sim.families`)."""
     lib = library()
+    if name not in lib and '/' in name:
+        from landing_zone.sim.families import instance_model, is_instance_name
+        if is_instance_name(name):
+            return instance_model(name)
     if name not in lib:
         raise SimulationError(f'unknown obstacle model {name!r}; choose from '
                               f'{", ".join(lib)}')

@@ -92,11 +92,14 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
                     region: Sequence[float] | None = None,
                     labels: dict[str, Any] | None = None,
                     separation: float = MIN_SEPARATION, sink: float = SINK,
+                    families: Sequence[str] = (),
                     ) -> list[Obstacle]:
     """Random obstacles standing on the ground the returns show.
 
-    Kinds are cycled through (obstacle ``i`` is of ``kinds[i % len(kinds)]``), each a model of
-    its kind drawn uniformly from ``group``; positions are uniform in ``region`` or in the safe
+    Kinds, then families, are cycled through (obstacle ``i`` is of entry ``i`` modulo their
+    number): a kind's model is drawn uniformly from the library's ``group``, a family's is a
+    random instance of that group's instances (:mod:`landing_zone.sim.families`; None: test
+    instances); positions are uniform in ``region`` or in the safe
     tiles of ``labels`` (both: a safe tile's part of the region), yaws uniform. A spot is taken
     when it keeps ``separation`` from every obstacle placed or labelled and the returns around it
     give a ground height (:func:`ground_height`).
@@ -108,6 +111,7 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
         kinds: obstacle kinds (see :data:`~landing_zone.sim.obstacles.KINDS`).
         group: ``train`` or ``test`` models (as the datasets split them), None for any.
         region: ``(x0, y0, x1, y1)``.
+        families: obstacle families (:data:`~landing_zone.sim.families.FAMILIES`).
         labels: a SITE.labels.json document.
         separation: least distance between obstacle centres [m].
         sink: how far below the estimated ground an obstacle's lowest point sits [m].
@@ -123,9 +127,11 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
 
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise SimulationError(f'count must be a positive integer, got {count!r}')
+    from landing_zone.sim.families import draw_instance, parse_families
     kinds = tuple(kinds)
-    if not kinds:
-        raise SimulationError('give at least one obstacle kind')
+    families = parse_families(tuple(families))
+    if not kinds and not families:
+        raise SimulationError('give at least one obstacle kind or family')
     by_kind = {k: sorted(models((k,), group), key=lambda m: m.name) for k in kinds}
     empty = [k for k, v in by_kind.items() if not v]
     if empty:
@@ -166,10 +172,14 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
              for o in (labels or {}).get('obstacles', []) if 'x' in o and 'y' in o]
     tree = cKDTree(p[:, :2]) if len(p) else None
     out: list[Obstacle] = []
+    entries = kinds + families
     for i in range(count):
-        kind = kinds[i % len(kinds)]
-        choices = by_kind[kind]
-        model = choices[int(rng.integers(len(choices)))]
+        entry = entries[i % len(entries)]
+        if i % len(entries) < len(kinds):
+            choices = by_kind[entry]
+            model = choices[int(rng.integers(len(choices)))]
+        else:
+            model = draw_instance(entry, group, rng).model
         radius = ground_radius(model)
         for _ in range(_PLACE_TRIES):
             if labels is not None:

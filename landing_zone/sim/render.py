@@ -19,7 +19,7 @@ from landing_zone.errors import BagError, DatasetError, SimulationError
 from landing_zone.io.labels import labels_path_for, read_labels
 from landing_zone.sim.mesh import GRASS, GROUND, OBSTACLE
 
-__all__ = ['render', 'render_points', 'render_library', 'CLASS_COLOURS']
+__all__ = ['render', 'render_points', 'render_library', 'render_families', 'CLASS_COLOURS']
 
 CLASS_COLOURS = {GROUND: '#8c6d46', GRASS: '#3f9b3a', OBSTACLE: '#d62728'}
 _NAMES = {GROUND: 'ground', GRASS: 'grass', OBSTACLE: 'obstacle'}
@@ -114,15 +114,36 @@ def render_points(points: np.ndarray, labels: np.ndarray | None, out: str | os.P
 
 def render_library(out: str | os.PathLike) -> Path:
     """Every obstacle model of the library, shaded, with its name, group and size."""
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     from landing_zone.sim.obstacles import library
     lib = list(library().values())
-    cols = 6
-    rows = -(-len(lib) // cols)
-    fig = _figure(2.6 * cols, 2.7 * rows)
+    return _render_models(lib, [f'{m.name} ({m.group})' for m in lib], out, 6, 0.26)
+
+
+def render_families(out: str | os.PathLike, per_family: int = 4, cols: int = 8,
+                    panel: float = 1.7) -> Path:
+    """The first ``per_family`` test instances of every obstacle family, ``cols`` to a row,
+    ``panel`` inches each."""
+    from landing_zone.sim.families import FAMILIES, TEST_BASE, instance
+    models, titles = [], []
+    for name, fam in FAMILIES.items():
+        for k in range(per_family):
+            inst = instance(name, TEST_BASE + k)
+            models.append(inst.model)
+            titles.append(f'{name} ({fam.split}) {inst.pose}' + (
+                f', {inst.arrangement}' if inst.arrangement != 'single' else ''))
+    return _render_models(models, titles, out, cols, 0.36, panel, dpi=80, fontsize=6)
+
+
+def _render_models(models: list[Any], titles: list[str], out: str | os.PathLike, cols: int,
+                   r: float, panel: float = 2.6, dpi: int = 110, fontsize: int = 8) -> Path:
+    """Shaded meshes in a grid, each titled with ``titles`` and its size."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    rows = -(-len(models) // cols)
+    fig = _figure(panel * cols, (panel + 0.1) * rows)
+    fig.set_dpi(dpi)
     light = np.array([0.4, -0.5, 0.77])
-    for k, m in enumerate(lib):
+    for k, (m, title) in enumerate(zip(models, titles)):
         ax = fig.add_subplot(rows, cols, k + 1, projection='3d')
         tri = m.vertices[m.faces]
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -131,7 +152,6 @@ def render_library(out: str | os.PathLike) -> Path:
         base = np.array([0.62, 0.58, 0.52]) if m.kind != 'tire' else np.array([0.3, 0.3, 0.32])
         ax.add_collection3d(Poly3DCollection(tri, facecolors=shade[:, None] * base,
                                              edgecolors='none'))
-        r = 0.26
         ax.set_xlim(-r, r)
         ax.set_ylim(-r, r)
         ax.set_zlim(0.0, 2 * r)
@@ -139,11 +159,11 @@ def render_library(out: str | os.PathLike) -> Path:
         ax.view_init(elev=22, azim=-60)
         ax.set_axis_off()
         dx, dy, dz = m.size
-        ax.set_title(f'{m.name} ({m.group})\n{100 * dx:.0f} x {100 * dy:.0f} x {100 * dz:.0f} cm',
-                     fontsize=8)
+        ax.set_title(f'{title}\n{100 * dx:.0f} x {100 * dy:.0f} x {100 * dz:.0f} cm',
+                     fontsize=fontsize)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out)
+    fig.savefig(out, dpi=dpi)
     return out
 
 
@@ -166,6 +186,11 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
         where = f"tile ({p['tile'][0]:g}, {p['tile'][1]:g}) of {p.get('flight')}" + (
             f", {p.get('altered', 0)} returns moved onto the obstacle" if p.get('obstacle')
             else '')
+    elif p.get('dataset') == 'synth3':  # drawn from the families
+        sen = p['sensor']
+        where = (f"{p['vegetation']['family']} vegetation, {p['terrain']['family']} ground, "
+                 f"{sen['family']} scanner {sen['height']:g} m up"
+                 + ('' if p.get('obstacle') else f" (pair's family {p['family']})"))
     else:
         where = (f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor "
                  f"at x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up")
@@ -225,7 +250,8 @@ def _render_flight(bag: Path, out: Path) -> Path:
 def render(source: str | os.PathLike, out: str | os.PathLike, index: int = 0,
            split: str = 'all') -> Path:
     """Render a dataset scene (``source`` a dataset directory), a flight (a ``.mcap`` bag) or
-    the obstacle library (``source`` the word ``library``).
+    the obstacle library (``source`` the word ``library``) or the obstacle families (the word
+    ``families``: six test instances of each).
 
     Raises:
         SimulationError: ``source`` is neither.
@@ -236,6 +262,8 @@ def render(source: str | os.PathLike, out: str | os.PathLike, index: int = 0,
         raise SimulationError(f'render writes a .png file, got {out}')
     if str(source) == 'library' and not source.exists():
         return render_library(out)
+    if str(source) == 'families' and not source.exists():
+        return render_families(out)
     if source.is_dir() and (source / 'meta.json').exists():
         return _render_scene(source, out, index, split)
     if source.suffix == '.mcap' and source.exists():

@@ -31,7 +31,7 @@ from landing_zone.sim.sensor import (HoverScan, SensorConfig, _HoverGeometry,
                                      estimate_nod_rate, hover_scan)
 from landing_zone.sim.terrain import Terrain, TerrainConfig
 
-__all__ = ['World', 'PatchConfig', 'Patch', 'simulate_patch', 'view_region']
+__all__ = ['World', 'PatchConfig', 'Patch', 'simulate_patch', 'view_region', 'hover_plan']
 
 
 @dataclass
@@ -142,7 +142,8 @@ class Patch:
 
 
 def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_lo: float,
-                z_hi: float, reach: float = 0.0) -> np.ndarray:
+                z_hi: float, reach: float = 0.0, grade: np.ndarray | None = None
+                ) -> np.ndarray:
     """Where rays from ``sources`` through a box can be between heights z_lo and z_hi.
 
     Args:
@@ -150,10 +151,15 @@ def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_l
         box_lo, box_hi: (3,) box corners.
         z_lo, z_hi: the layer (lowest ground, highest blade tip).
         reach: widen the region by this much on every side (blades leaning in).
+        grade: (2,) the layer's planes rise by ``grade . (x, y)`` (ground on a slope: the
+            layer follows it, ``z_lo`` and ``z_hi`` are then its bounds at x = y = 0).
 
     Returns:
         (K, 2) convex polygon, counter-clockwise.
     """
+    if grade is not None:
+        return _tilted_view_region(sources, box_lo, box_hi, z_lo, z_hi, reach,
+                                   np.asarray(grade, dtype=float))
     from scipy.spatial import ConvexHull
     corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
                         for z in (box_lo[2], box_hi[2])])
@@ -170,6 +176,49 @@ def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_l
         ring = reach / math.cos(math.pi / 16) * np.stack([np.cos(ang), np.sin(ang)], axis=1)
         pts = (pts[:, None, :] + ring[None]).reshape(-1, 2)
     return pts[ConvexHull(pts).vertices]
+
+
+def _tilted_view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray,
+                        z_lo: float, z_hi: float, reach: float, grade: np.ndarray
+                        ) -> np.ndarray:
+    """:func:`view_region` between the planes ``z = grade . xy + z_lo`` and ``... + z_hi``: the
+    same argument (a convex cone cut by two parallel planes) with the ray parameter of each
+    plane ``t = (z0 + g . s - s_z) / ((c_z - s_z) - g . (c - s))``."""
+    from scipy.spatial import ConvexHull
+    corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
+                        for z in (box_lo[2], box_hi[2])])
+    s = np.asarray(sources, dtype=float).reshape(-1, 1, 1, 3)
+    c = corners.reshape(1, -1, 1, 3)
+    planes = np.array([z_lo, z_hi]).reshape(1, 1, -1)
+    g_s = s[..., 0] * grade[0] + s[..., 1] * grade[1]
+    if np.any(s[..., 2] - g_s <= max(z_lo, z_hi) + 1e-6):
+        raise SimulationError('the sensor must be above the region of interest')
+    dz = (c[..., 2] - s[..., 2]) - ((c[..., 0] - s[..., 0]) * grade[0]
+                                    + (c[..., 1] - s[..., 1]) * grade[1])
+    if np.any(dz >= 0):
+        raise SimulationError('a ray through the region of interest does not come down to the '
+                              'sloped ground: the slope is steeper than the view')
+    f = (planes + g_s - s[..., 2]) / dz
+    pts = (s[..., :2] + f[..., None] * (c[..., :2] - s[..., :2])).reshape(-1, 2)
+    if reach > 0:
+        ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
+        ring = reach / math.cos(math.pi / 16) * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        pts = (pts[:, None, :] + ring[None]).reshape(-1, 2)
+    return pts[ConvexHull(pts).vertices]
+
+
+def hover_plan(sensor: SensorConfig, position: np.ndarray, aoi_lo: np.ndarray,
+               aoi_hi: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """What a hover scan will do before any world exists: its nod rate [deg/s], the bound of
+    the sensor's wander [m] (how long the scan takes decides how far it may wander) and the
+    (8, 3) corners of the box the sensor stays in."""
+    omega = estimate_nod_rate(sensor, position, aoi_lo, aoi_hi, 0.0)
+    geom = _HoverGeometry.make(sensor, position, np.zeros(3), 0.0)
+    t_scan = (sensor.sweeps_per_target + 1.5) * geom.span / math.radians(omega)
+    wander = 5.0 * sensor.wander_sigma * math.sqrt(t_scan) + 0.01
+    sources = position + wander * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1)
+                                            for z in (-1, 1)])
+    return omega, wander, sources
 
 
 def simulate_patch(config: PatchConfig, rng: np.random.Generator, threads: int = 1) -> Patch:
@@ -190,13 +239,7 @@ def simulate_patch(config: PatchConfig, rng: np.random.Generator, threads: int =
     position = config.position
     aoi_lo, aoi_hi = config.aoi
     box_lo, box_hi = config.column
-    # How long the scan will take decides how far the sensor may wander.
-    omega = estimate_nod_rate(sensor, position, aoi_lo, aoi_hi, 0.0)
-    geom = _HoverGeometry.make(sensor, position, np.zeros(3), 0.0)
-    t_scan = (sensor.sweeps_per_target + 1.5) * geom.span / math.radians(omega)
-    wander = 5.0 * sensor.wander_sigma * math.sqrt(t_scan) + 0.01
-    sources = position + wander * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1)
-                                            for z in (-1, 1)])
+    omega, wander, sources = hover_plan(sensor, position, aoi_lo, aoi_hi)
     amp = config.terrain.amplitude
     z_hi = amp + config.grass.max_height + 0.01
     reach = config.grass.max_height

@@ -114,7 +114,7 @@ class SensorConfig:
         return asdict(self)
 
 
-SCAN_PATTERNS = ('line', 'spinning', 'rosette')
+SCAN_PATTERNS = ('line', 'spinning', 'rosette', 'elliptical')
 
 
 @dataclass(frozen=True)
@@ -137,6 +137,11 @@ class ScanPattern:
       the sum of two vectors of length ``fov / 4`` turning in opposite senses at
       ``prism_rates`` [rev/s]; with an irrational ratio the petals never repeat and the circle
       of diameter ``fov`` fills up over time, densest at its centre and rim.
+    * ``elliptical``: a nutating-mirror (Palmer) scanner: every pulse leaves at ``fov / 2`` from
+      x, the mirror turning about x at ``spin_rate`` [rev/s], so the pulses trace the rim of the
+      circle of diameter ``fov``; on the ground, seen from a tilted mount, an ellipse, which the
+      vehicle's motion sweeps along (every point is crossed twice, by the ellipse's front and
+      back arcs, from two view directions).
 
     Points per second are the sensor's ``prr`` in every pattern; the pulses are grouped into
     "lines" of ``SensorConfig.pulses_per_line`` (the clouds and poses of a flight follow them).
@@ -145,8 +150,8 @@ class ScanPattern:
     kind: str = 'line'  # one of SCAN_PATTERNS
     beams: int = 16  # spinning: beams
     beam_fov: float = 30.0  # spinning: spread of the beams' elevations [deg]
-    spin_rate: float = 10.0  # spinning: [rev/s]
-    fov: float = 70.0  # rosette: diameter of the circular field of view [deg]
+    spin_rate: float = 10.0  # spinning, elliptical: [rev/s]
+    fov: float = 70.0  # rosette, elliptical: diameter of the circular field of view [deg]
     prism_rates: tuple[float, float] = (120.0, 74.16407864998739)  # rosette [rev/s] (ratio phi)
 
     def validate(self) -> None:
@@ -194,6 +199,11 @@ class ScanPattern:
             rho = np.hypot(dy, dz)
             sinc = np.where(rho > 0, np.sin(rho) / np.where(rho > 0, rho, 1.0), 1.0)
             return np.stack([np.cos(rho), sinc * dy, sinc * dz], axis=-1)
+        if self.kind == 'elliptical':
+            half = 0.5 * math.radians(self.fov)
+            w = 2.0 * np.pi * np.mod(self.spin_rate * times, 1.0)
+            return np.stack([np.full(w.shape, math.cos(half)), math.sin(half) * np.cos(w),
+                             math.sin(half) * np.sin(w)], axis=-1)
         raise SimulationError('the line pattern has no pulse directions of its own '
                               '(see scan_directions)')
 

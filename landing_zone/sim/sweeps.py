@@ -28,7 +28,7 @@ __all__ = ['SWEEPS', 'Sweep', 'TEST_FRACTION', 'scene_plan', 'select_scenes', 's
            'generate_scene', 'choose_model', 'mix', 'get_sweep']
 
 TEST_FRACTION = 0.2
-_DATASET_CODES = {'synth1': 1, 'synth2': 2}
+_DATASET_CODES = {'synth1': 1, 'synth2': 2, 'synth3': 3}  # synth3: landing_zone.sim.synth3
 _SPLITS = ('train', 'test', 'both')
 # Obstacle kinds of synth2 are drawn with these weights, then a model of the kind uniformly.
 _KIND_WEIGHTS = {'rock': 0.5, 'tire': 0.25, 'cinder_block': 0.25}
@@ -167,6 +167,9 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
         (N,), ``origins`` float32 (M, 3), ``origin_times`` float32 (M,), ``label``, ``split``,
         ``params`` (JSON-ready), ``rays`` (cast) and ``timings`` (seconds per stage).
     """
+    if dataset == 'synth3':
+        from landing_zone.sim.synth3 import generate_scene as generate_synth3
+        return generate_synth3(index, seed, threads)
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig

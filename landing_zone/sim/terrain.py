@@ -15,7 +15,7 @@ import numpy as np
 from landing_zone.errors import SimulationError
 from landing_zone.sim.mesh import GROUND, Mesh
 
-__all__ = ['TerrainConfig', 'PerlinNoise', 'Terrain']
+__all__ = ['TerrainConfig', 'PerlinNoise', 'Terrain', 'SlopedTerrain']
 
 # The largest magnitude 2D gradient noise with unit gradients can take is sqrt(2)/2: dividing by
 # it maps the noise into [-1, 1], so heights stay within +-amplitude.
@@ -167,3 +167,34 @@ class Terrain:
         faces = np.concatenate([np.stack([v00, v01, v11], axis=1),
                                 np.stack([v00, v11, v10], axis=1)])
         return Mesh.from_arrays(vertices, faces, GROUND)
+
+
+class SlopedTerrain(Terrain):
+    """:class:`Terrain` on an inclined plane through the origin: the noise heights plus
+    ``tan(slope) * ((x, y) . (cos azimuth, sin azimuth))`` (the ground rises towards
+    ``azimuth``). The plane is linear on every grid triangle, so :meth:`height` stays exact.
+
+    Args:
+        config, rng, lo, hi: as for :class:`Terrain` (the noise is drawn the same way).
+        slope: inclination of the plane [deg], 0 to 45.
+        azimuth: direction of steepest ascent [rad].
+    """
+
+    def __init__(self, config: TerrainConfig, rng: np.random.Generator,
+                 lo: tuple[float, float], hi: tuple[float, float], slope: float = 0.0,
+                 azimuth: float = 0.0) -> None:
+        if not (isinstance(slope, (int, float)) and math.isfinite(slope) and 0 <= slope <= 45):
+            raise SimulationError(f'terrain slope must lie in [0, 45] degrees, got {slope!r}')
+        if not (isinstance(azimuth, (int, float)) and math.isfinite(azimuth)):
+            raise SimulationError(f'terrain slope azimuth must be a finite angle, got '
+                                  f'{azimuth!r}')
+        super().__init__(config, rng, lo, hi)
+        self.slope = float(slope)
+        self.azimuth = float(azimuth)
+        s = config.spacing
+        ny, nx = self.shape
+        xs = self.lo[0] + s * np.arange(nx + 1)
+        ys = self.lo[1] + s * np.arange(ny + 1)
+        g = math.tan(math.radians(slope))
+        self.heights = self.heights + g * (math.cos(azimuth) * xs[None, :]
+                                           + math.sin(azimuth) * ys[:, None])

@@ -1,0 +1,272 @@
+"""Leave one family out: training without a family, and the figures per family.
+
+synth3 (:mod:`landing_zone.sim.synth3`) records, for every scene, the family it was drawn
+from on four axes: ``obstacle`` (the pair's obstacle family; a safe scene names its twin's),
+``vegetation``, ``terrain`` and ``sensor``. Two things use them:
+
+* **Training without a family**: ``landing-zone train --data data/synth3 --hold-out
+  obstacle:log`` trains on the train split minus every scene of that family (both scenes of
+  each pair, so the classes stay balanced); several ``--hold-out`` drop all of them. The model
+  records what it left out (``training.hold_out`` in its metadata). One synth3 directory thus
+  serves every leave-one-family-out (LOFO) model: nothing is regenerated per family.
+* **Figures per family**: ``landing-zone evaluate --data data/synth3 --by-family`` reports for
+  every family on every axis of the test split (test instances of train families; test
+  families entirely) and every model: AUC, ECE, the shares of obstacle scenes given
+  P(safe) >= 0.5 and >= 0.9, and the share of safe scenes flagged (P(safe) < 0.5). The LOFO
+  table then gives, for each family, the figures of the model that did not see it: a model
+  that held it out, or, for the test families, any model trained on synth3's train split.
+
+A scene is one tile: "obstacle tiles at P(safe) >= 0.5" are the unsafe scenes of the family so
+judged; ECE uses the 15 bins of :mod:`landing_zone.learn.evaluate`.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from landing_zone.errors import ConfigError, DatasetError
+
+__all__ = ['AXES', 'parse_hold_out', 'scene_families', 'SceneSubset', 'hold_out',
+           'dataset_names', 'family_figures', 'family_report', 'family_report_for',
+           'markdown_families']
+
+AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')
+
+
+def _known(axis: str) -> tuple[str, ...]:
+    from landing_zone.sim.families import FAMILIES
+    from landing_zone.sim.synth3 import SENSOR_FAMILIES, TERRAIN_FAMILIES
+    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+    return {'obstacle': tuple(FAMILIES), 'vegetation': VEGETATION_FAMILIES,
+            'terrain': tuple(TERRAIN_FAMILIES), 'sensor': tuple(SENSOR_FAMILIES)}[axis]
+
+
+def parse_hold_out(specs: Sequence[str]) -> list[tuple[str, str]]:
+    """``AXIS:FAMILY`` strings (``obstacle:log``, ``vegetation:lodged``) as pairs.
+
+    Raises:
+        ConfigError: a malformed spec, an unknown axis or family.
+    """
+    out = []
+    for spec in specs:
+        axis, sep, family = str(spec).partition(':')
+        if not sep or not family:
+            raise ConfigError(f'--hold-out wants AXIS:FAMILY (e.g. obstacle:log, '
+                              f'vegetation:lodged), got {spec!r}')
+        if axis not in AXES:
+            raise ConfigError(f'--hold-out {spec!r}: unknown axis {axis!r}; choose from '
+                              f'{", ".join(AXES)}')
+        if family not in _known(axis):
+            raise ConfigError(f'--hold-out {spec!r}: unknown {axis} family {family!r}; choose '
+                              f'from {", ".join(_known(axis))}')
+        if (axis, family) not in out:
+            out.append((axis, family))
+    return out
+
+
+def scene_families(ds: Any) -> dict[str, np.ndarray]:
+    """Per scene of a :class:`~landing_zone.sim.dataset.SceneDataset` (in its order), the
+    family on each axis, from ``meta.json`` alone (no shard is read).
+
+    Raises:
+        DatasetError: the directory records no families (only synth3 does).
+    """
+    shards = ds.meta.get('shards', [])
+    if not shards or any('families' not in s for s in shards):
+        raise DatasetError(f'{ds.root} records no families ({ds.meta.get("dataset")}; only '
+                           'synth3 does): leaving a family out needs a synth3 dataset')
+    return {a: np.array([shards[k]['families'][a][j] for k, j in ds._index], dtype=object)
+            for a in AXES}
+
+
+class SceneSubset:
+    """Some scenes of a source (``len``, ``[i] -> Scene``, ``labels``), in the source's order."""
+
+    def __init__(self, source: Any, positions: np.ndarray, name: str = '') -> None:
+        self.source = source
+        self.positions = np.asarray(positions, dtype=np.int64)
+        labels = getattr(source, 'labels', None)
+        self.labels = (np.asarray(labels, np.int64)[self.positions] if labels is not None
+                       else np.array([int(source[int(i)].label) for i in self.positions]))
+        self.name = name
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def __getitem__(self, i: int) -> Any:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f'scene {i} out of range ({len(self)} scenes)')
+        return self.source[int(self.positions[i])]
+
+
+def hold_out(source: Any, specs: Sequence[str]) -> SceneSubset | Any:
+    """``source`` without the scenes of the held-out families.
+
+    Args:
+        source: a SceneDataset, or a :class:`landing_zone.learn.scenes.ConcatScenes` of them.
+        specs: ``AXIS:FAMILY`` strings.
+
+    Raises:
+        ConfigError: a bad spec.
+        DatasetError: a source that records no families, or nothing left.
+    """
+    pairs = parse_hold_out(specs)
+    if not pairs:
+        return source
+    parts = getattr(source, 'sources', None)
+    if parts is not None:  # several directories, one after the other
+        from landing_zone.learn.scenes import ConcatScenes
+        return ConcatScenes([hold_out(p, specs) for p in parts])
+    fams = scene_families(source)
+    keep = np.ones(len(source), dtype=bool)
+    for axis, family in pairs:
+        keep &= fams[axis] != family
+    if not keep.any():
+        raise DatasetError(f'{getattr(source, "root", "the data")}: no scene left after '
+                           f'holding out {", ".join(specs)}')
+    return SceneSubset(source, np.flatnonzero(keep),
+                       f'{getattr(source, "root", "")} without {", ".join(specs)}')
+
+
+def dataset_names(source: Any) -> list[str]:
+    """The datasets (``meta.json``'s ``dataset``) a training source is made of."""
+    parts = getattr(source, 'sources', None)
+    if parts is not None:
+        return [n for p in parts for n in dataset_names(p)]
+    inner = getattr(source, 'source', None)
+    if isinstance(source, SceneSubset) and inner is not None:
+        return dataset_names(inner)
+    meta = getattr(source, 'meta', None)
+    return [str(meta.get('dataset'))] if isinstance(meta, dict) else []
+
+
+# --- figures per family ------------------------------------------------------------------------
+
+def family_figures(p_safe: np.ndarray, labels: np.ndarray, probabilistic: bool = True
+                   ) -> dict[str, Any]:
+    """AUC, ECE and the shares that matter for landing, of one family's scenes."""
+    from sklearn.metrics import roc_auc_score
+
+    from landing_zone.learn.calibration import expected_calibration_error
+    from landing_zone.learn.evaluate import ECE_BINS
+    p = np.asarray(p_safe, np.float64)
+    y = np.asarray(labels, np.int64)
+    unsafe, safe = y == 0, y == 1
+
+    def share(mask: np.ndarray, sel: np.ndarray) -> float | None:
+        return float(np.mean(mask[sel])) if sel.any() and probabilistic else None
+
+    return {
+        'n': int(len(y)), 'n_unsafe': int(unsafe.sum()),
+        'auc': float(roc_auc_score(y, p)) if unsafe.any() and safe.any() else None,
+        'ece': (expected_calibration_error(p, y, ECE_BINS) if probabilistic and len(y)
+                else None),
+        'unsafe_ge_0.5': share(p >= 0.5, unsafe), 'unsafe_ge_0.9': share(p >= 0.9, unsafe),
+        'safe_lt_0.5': share(p < 0.5, safe)}
+
+
+def _families_of_params(params: Sequence[dict]) -> dict[str, np.ndarray]:
+    from landing_zone.sim.synth3 import families_of
+    try:
+        rows = [families_of(p) for p in params]
+    except (KeyError, TypeError) as err:
+        raise DatasetError('the scenes record no families (only synth3 scenes do): '
+                           '--by-family needs a synth3 dataset') from err
+    return {a: np.array([r[a] for r in rows], dtype=object) for a in AXES}
+
+
+def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.ndarray,
+                  held_out: dict[str, list[tuple[str, str]]] | None = None,
+                  trained_on_synth3: dict[str, bool] | None = None,
+                  probabilistic: dict[str, bool] | None = None) -> dict[str, Any]:
+    """Figures per family for every method, and the leave-one-family-out table.
+
+    Args:
+        results: per method, an object with ``name`` and ``scores`` (aligned with ``params``).
+        params: the evaluated scenes' parameters (they name their families).
+        labels: (T,) 1 safe, 0 unsafe.
+        held_out: per method name, the (axis, family) pairs its training left out.
+        trained_on_synth3: per method name, whether it was trained on synth3's train split
+            (then the test families, never in that split, count as held out).
+        probabilistic: per method name, whether its scores are P(safe) (default: yes).
+
+    Returns:
+        ``{'methods': {name: {axis: {family: figures}}}, 'lofo': {axis: {family: figures +
+        'model'}}}``; families without a method that left them out are missing from 'lofo'.
+    """
+    from landing_zone.sim.families import TEST_FAMILIES
+    fams = _families_of_params(params)
+    y = np.asarray(labels, np.int64)
+    held_out = held_out or {}
+    trained_on_synth3 = trained_on_synth3 or {}
+    probabilistic = probabilistic or {}
+    methods: dict[str, Any] = {}
+    lofo: dict[str, dict[str, Any]] = {a: {} for a in AXES}
+    for r in results:
+        prob = probabilistic.get(r.name, True)
+        per: dict[str, Any] = {}
+        unseen = set(held_out.get(r.name, []))
+        if trained_on_synth3.get(r.name):
+            unseen |= {('obstacle', f) for f in TEST_FAMILIES}
+        for axis in AXES:
+            per[axis] = {}
+            for family in sorted(set(fams[axis])):
+                sel = fams[axis] == family
+                fig = family_figures(np.asarray(r.scores)[sel], y[sel], prob)
+                per[axis][family] = fig
+                if (axis, family) in unseen and prob and family not in lofo[axis]:
+                    lofo[axis][family] = {**fig, 'model': r.name}
+        methods[r.name] = per
+    return {'methods': methods, 'lofo': {a: v for a, v in lofo.items() if v}}
+
+
+def _fmt(v: float | None, pct: bool = False) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return '-'
+    return f'{100 * v:.1f}%' if pct else f'{v:.3f}'
+
+
+def markdown_families(report: dict[str, Any], axes: Sequence[str] = AXES) -> str:
+    """The report as markdown: the LOFO table first (when there is one), then per method one
+    table per axis."""
+    lines: list[str] = []
+    head = ('| family | scenes (unsafe) | AUC | ECE | obstacle tiles P>=0.5 | P>=0.9 | '
+            'safe tiles P<0.5 |')
+    rule = '|---|---:|---:|---:|---:|---:|---:|'
+
+    def row(family: str, f: dict[str, Any]) -> str:
+        return (f'| {family} | {f["n"]} ({f["n_unsafe"]}) | {_fmt(f["auc"])} | '
+                f'{_fmt(f["ece"])} | {_fmt(f["unsafe_ge_0.5"], True)} | '
+                f'{_fmt(f["unsafe_ge_0.9"], True)} | {_fmt(f["safe_lt_0.5"], True)} |')
+
+    if report.get('lofo'):
+        lines += ['Leave one family out: each family judged by a model that never saw it.', '',
+                  head + ' model |', rule + '---|']
+        for axis in axes:
+            for family, f in sorted(report['lofo'].get(axis, {}).items()):
+                lines.append(row(f'{axis}:{family}', f) + f' {f["model"]} |')
+        lines.append('')
+    for name, per in report['methods'].items():
+        for axis in axes:
+            if axis not in per:
+                continue
+            lines += [f'{name}, by {axis} family:', '', head, rule]
+            lines += [row(family, f) for family, f in per[axis].items()]
+            lines.append('')
+    return '\n'.join(lines)
+
+
+def family_report_for(results: Sequence[Any], params: Sequence[dict], labels: np.ndarray,
+                      metas: Sequence[dict]) -> dict[str, Any]:
+    """:func:`family_report` of an evaluation: the first ``len(metas)`` results are the CNNs
+    whose model metadata are ``metas`` (what they held out, what they were trained on); a
+    method is probabilistic where its result carries a reliability diagram."""
+    held, synth3 = {}, {}
+    for r, meta in zip(results, metas):
+        training = meta.get('training', {}) or {}
+        held[r.name] = parse_hold_out(training.get('hold_out', []) or [])
+        synth3[r.name] = 'synth3' in (meta.get('datasets') or [])
+    prob = {r.name: getattr(r, 'reliability', None) is not None for r in results}
+    return family_report(results, params, labels, held, synth3, prob)

@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Leave one family out: one model per held-out train family of obstacles and per vegetation
+# family, the final model on everything, then the LOFO table (models/MODEL_CARD.md, "Planned").
+# Resumable at any point: a finished model is skipped, an interrupted one resumes from its
+# training state (--resume), and the dataset commands skip finished shards.
+#   usage: scripts/lofo.sh [WORKDIR]          (default runs/lofo; data in data/synth3*)
+# Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
+# FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); WORKERS.
+set -euo pipefail
+work=${1:-runs/lofo}
+lz=${LZ:-.venv/bin/landing-zone}
+train_data=${TRAIN_DATA:-data/synth3}
+test_data=${TEST_DATA:-data/synth3_test}
+epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_SAMPLES:-0}
+workers=${WORKERS:-2}
+mkdir -p "$work"
+# The train families of synth3 (the test families are never trained on: the final model is
+# their leave-one-out model) and the vegetation families.
+families=$(.venv/bin/python -c 'from landing_zone.sim.families import TRAIN_FAMILIES as f; print(" ".join("obstacle:" + n for n in f))')
+vegetation=$(.venv/bin/python -c 'from landing_zone.sim.vegetation import VEGETATION_FAMILIES as f; print(" ".join("vegetation:" + n for n in f))')
+
+train_one() {  # NAME HOLD-OUT...
+    local name=$1; shift
+    local out="$work/$name.safetensors"
+    [ -f "$out" ] && { echo "lofo: $out done"; return; }
+    local holds=()
+    for h in "$@"; do holds+=(--hold-out "$h"); done
+    /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train --data "$train_data" \
+        --out "$out" "${holds[@]}" --epochs "$epochs" --augment-copies "$copies" \
+        --cache-voxels "$cache" --max-samples "$max_samples" --workers "$workers" --resume \
+        2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+}
+
+for h in $families $vegetation; do
+    train_one "lofo_${h//:/_}" "$h"
+done
+epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
+train_one final
+models=(--model "$work/final.safetensors")
+for h in $families $vegetation; do models+=(--model "$work/lofo_${h//:/_}.safetensors"); done
+"$lz" evaluate --data "$test_data" --by-family "${models[@]}" --workers "$workers" \
+    --json "$work/lofo.json" | tee "$work/lofo.md"

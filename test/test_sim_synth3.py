@@ -1,0 +1,178 @@
+"""synth3: the plan (pairs, splits by family and instance), deterministic resumable shards,
+the families of every scene, and leaving a family out (landing_zone.learn.lofo)."""
+from __future__ import annotations
+
+import hashlib
+import json
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from landing_zone.errors import ConfigError, DatasetError
+from landing_zone.learn.lofo import (family_figures, family_report, hold_out,
+                                     markdown_families, parse_hold_out, scene_families)
+from landing_zone.sim.dataset import simulate_dataset
+from landing_zone.sim.shards import SceneDataset
+from landing_zone.sim.families import FAMILIES, TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
+from landing_zone.sim.synth3 import SENSOR_FAMILIES, families_of, scene_plan, select_scenes
+from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+
+
+def digest(root):
+    files = sorted((root / 'shards').glob('*.npz')) + [root / 'meta.json']
+    return {f.name: hashlib.sha256(f.read_bytes()).hexdigest() for f in files}
+
+
+@pytest.fixture(scope='module')
+def small(tmp_path_factory):
+    """Twelve scenes: six pairs, in shards of four, by two workers."""
+    root = tmp_path_factory.mktemp('synth3') / 'data'
+    simulate_dataset('synth3', root, scenes=12, workers=2, seed=4, shard_size=4,
+                     progress=False)
+    return root
+
+
+def test_plan_pairs_and_splits():
+    plans = [scene_plan(i, 0) for i in range(4000)]
+    for a, b in zip(plans[0::2], plans[1::2]):
+        # Twins: everything but the label is the same, one of them unsafe.
+        assert {a['label'], b['label']} == {0, 1}
+        strip = ('index', 'label')
+        assert {k: v for k, v in a.items() if k not in strip} == \
+            {k: v for k, v in b.items() if k not in strip}
+    train = [p for p in plans if p['split'] == 'train']
+    test = [p for p in plans if p['split'] == 'test']
+    assert 0.2 < len(test) / len(plans) < 0.3
+    # By family: test families only in the test split; by instance: disjoint index ranges.
+    assert {p['family'] for p in train} == set(TRAIN_FAMILIES)
+    assert {p['family'] for p in test} == set(FAMILIES)
+    assert max(p['instance'] for p in train) < TEST_BASE <= min(p['instance'] for p in test)
+    assert {p['vegetation']['family'] for p in plans} == set(VEGETATION_FAMILIES)
+    assert {p['sensor']['family'] for p in plans} == set(SENSOR_FAMILIES)
+    dens = np.array([p['sensor']['density'] for p in plans])
+    heights = np.array([p['sensor']['height'] for p in plans])
+    assert 1000 <= dens.min() and dens.max() <= 5000 and 4 <= heights.min() < heights.max() <= 20
+    slopes = [p['terrain']['slope'] for p in plans]
+    assert max(slopes) > 11.0
+    assert 0.2 < np.mean([p['hide'] is not None for p in plans]) < 0.4
+    # The plan depends on the seed, the split does not.
+    other = [scene_plan(i, 1) for i in range(40)]
+    assert [p['split'] for p in other] == [p['split'] for p in plans[:40]]
+    assert [p['family'] for p in other] != [p['family'] for p in plans[:40]]
+    idx = select_scenes(10, 'test')
+    assert all(scene_plan(int(i))['split'] == 'test' for i in idx) and len(idx) == 10
+
+
+def test_scenes_record_their_families_and_are_deterministic(small, tmp_path):
+    ds = SceneDataset(small, 'all')
+    assert len(ds) == 12 and ds.meta['dataset'] == 'synth3'
+    fams = scene_families(ds)
+    for i in range(len(ds)):
+        s = ds[i]
+        p = s.params
+        assert families_of(p) == {a: fams[a][i] for a in fams}
+        assert (p['obstacle'] is None) == (s.label == 1)
+        assert len(s.points) > 1000 and s.points.dtype == np.float32
+        if p['obstacle'] is not None:
+            assert p['obstacle']['family'] == p['family']
+            assert p['obstacle']['model'] == f"{p['family']}/{p['instance']}"
+            assert (s.hit_class == 2).sum() > 0  # the obstacle is seen
+        # The achieved density is near the plan's (flat-ground estimate for passes).
+        assert 0.5 < p['density'] / p['sensor']['density'] < 1.6
+    # Same seed, one worker, another shard order of completion: the same bytes.
+    again = tmp_path / 'again'
+    simulate_dataset('synth3', again, scenes=12, workers=1, seed=4, shard_size=4,
+                     progress=False)
+    assert digest(again) == digest(small)
+    # Interrupted: a shard lost and a half-written one; the rerun restores the same bytes.
+    (again / 'shards' / 'shard-00001.npz').unlink()
+    (again / 'shards' / 'shard-00002.npz.tmp-99').write_bytes(b'partial')
+    s = simulate_dataset('synth3', again, scenes=12, workers=1, seed=4, shard_size=4,
+                         progress=False)
+    assert (s['generated'], s['skipped']) == (4, 8)
+    assert digest(again) == digest(small)
+
+
+def test_hold_out_drops_whole_pairs_of_a_family(small):
+    ds = SceneDataset(small, 'all')
+    fams = scene_families(ds)
+    family = Counter(fams['obstacle']).most_common(1)[0][0]
+    sub = hold_out(ds, [f'obstacle:{family}'])
+    kept = fams['obstacle'][sub.positions]
+    assert family not in set(kept) and len(sub) == int((fams['obstacle'] != family).sum())
+    assert int((sub.labels == 0).sum()) == int((sub.labels == 1).sum())  # still balanced
+    assert sub[0].params['family'] != family
+    veg = fams['vegetation'][0]
+    both = hold_out(ds, [f'obstacle:{family}', f'vegetation:{veg}'])
+    assert len(both) < len(sub) or veg not in set(fams['vegetation'][sub.positions])
+    assert hold_out(ds, []) is ds
+    for bad, match in [('log', 'AXIS:FAMILY'), ('colour:red', 'unknown axis'),
+                       ('obstacle:spaceship', 'unknown obstacle family'),
+                       ('vegetation:log', 'unknown vegetation family')]:
+        with pytest.raises(ConfigError, match=match):
+            parse_hold_out([bad])
+
+
+def test_hold_out_needs_a_dataset_with_families(tmp_path):
+    root = tmp_path / 's2'
+    simulate_dataset('synth2', root, scenes=2, workers=1, progress=False)
+    with pytest.raises(DatasetError, match='records no families'):
+        hold_out(SceneDataset(root, 'all'), ['obstacle:log'])
+
+
+def test_family_figures_and_the_lofo_table():
+    class R:
+        def __init__(self, name, scores):
+            self.name, self.scores = name, np.asarray(scores, float)
+
+    # Two families, two scenes each; 'b' misjudged by the first method.
+    params = [{'family': f, 'vegetation': {'family': 'uniform'}, 'terrain': {'family': 'flat'},
+               'sensor': {'family': 'line'}} for f in ('a', 'a', 'b', 'b')]
+    labels = np.array([1, 0, 1, 0])
+    r1 = R('one', [0.9, 0.1, 0.2, 0.95])
+    r2 = R('two', [0.8, 0.3, 0.7, 0.05])
+    rep = family_report([r1, r2], params, labels, held_out={'two': [('obstacle', 'b')]})
+    fa = rep['methods']['one']['obstacle']['a']
+    fb = rep['methods']['one']['obstacle']['b']
+    assert fa['auc'] == 1.0 and fa['unsafe_ge_0.5'] == 0.0 and fa['safe_lt_0.5'] == 0.0
+    assert fb['auc'] == 0.0 and fb['unsafe_ge_0.5'] == 1.0 and fb['unsafe_ge_0.9'] == 1.0
+    assert fb['safe_lt_0.5'] == 1.0
+    # The LOFO row of 'b' is the model that held it out.
+    assert rep['lofo']['obstacle']['b']['model'] == 'two'
+    assert rep['lofo']['obstacle']['b']['auc'] == 1.0 and 'a' not in rep['lofo']['obstacle']
+    text = markdown_families(rep)
+    assert text.startswith('Leave one family out') and '| obstacle:b | 2 (1) | 1.000 |' in text
+    f = family_figures(np.array([0.95, 0.6, 0.2]), np.array([0, 0, 1]))
+    assert f['unsafe_ge_0.5'] == 1.0 and f['unsafe_ge_0.9'] == 0.5 and f['n_unsafe'] == 2
+    assert json.dumps(rep)  # JSON-ready
+    # A test family counts as held out by any model trained on synth3's train split.
+    params[2]['family'] = params[3]['family'] = TEST_FAMILIES[0]
+    rep = family_report([r1], params, labels, trained_on_synth3={'one': True})
+    assert rep['lofo']['obstacle'][TEST_FAMILIES[0]]['model'] == 'one'
+
+
+def test_train_without_a_family_and_evaluate_by_family(small, tmp_path):
+    """The trainer leaves the family out and says so in the model; evaluate --by-family then
+    reports that family in the LOFO table with that model (real training, tiny budget)."""
+    from landing_zone.learn.evaluate import evaluate
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.learn.train import TrainConfig, train
+    ds = SceneDataset(small, 'train')
+    family = Counter(scene_families(ds)['obstacle']).most_common(1)[0][0]
+    out = tmp_path / 'lofo.safetensors'
+    summary = train(small, out, TrainConfig(epochs=1, augment_copies=1, batch_size=4,
+                                            val_fraction=0.25, hold_out=[f'obstacle:{family}']),
+                    progress=False)
+    meta = read_metadata(out)
+    assert meta['training']['hold_out'] == [f'obstacle:{family}']
+    assert meta['datasets'] == ['synth3'] and family in meta['source']
+    kept = int((scene_families(ds)['obstacle'] != family).sum())
+    assert meta['n_train_scenes'] + meta['n_val_scenes'] == kept and summary['samples'] > 0
+    res = evaluate(small, out, split='train', by_family=True, progress=False)
+    fam = res['families']
+    assert set(fam['methods']) == {next(iter(res['methods']))}
+    # The held-out family's scenes are in the split (not in training): judged by this model.
+    n_family = int((scene_families(ds)['obstacle'] == family).sum())
+    assert fam['lofo']['obstacle'][family]['n'] == n_family > 0
+    assert 'Leave one family out' in res['table'] and f'obstacle:{family}' in res['table']

@@ -1,0 +1,116 @@
+"""Vegetation families, sloped ground and the view region that follows it."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from landing_zone.errors import SimulationError
+from landing_zone.sim.mesh import GRASS, GROUND, Mesh
+from landing_zone.sim.scene import World, view_region
+from landing_zone.sim.terrain import SlopedTerrain, Terrain, TerrainConfig
+from landing_zone.sim.vegetation import (MAX_VEGETATION_HEIGHT, SAFE_SHRUB_HEIGHT,
+                                         VEGETATION_FAMILIES, build_vegetation,
+                                         draw_vegetation, hide_obstacle, vegetation_top)
+
+SQUARE = np.array([[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]])
+TILE = (np.array([-0.5, -0.5]), np.array([0.5, 0.5]))
+
+
+def _ground_share(mesh: Mesh, terrain: Terrain, depression: float) -> float:
+    """Share of parallel rays into the tile at ``depression`` [deg] that reach the ground."""
+    caster = World(terrain, mesh).caster(1)
+    xy = np.random.default_rng(5).uniform(-0.5, 0.5, (3000, 2))
+    d = np.array([math.cos(math.radians(depression)), 0.0, -math.sin(math.radians(depression))])
+    org = np.column_stack([xy, np.zeros(len(xy))]) - 2.0 * d
+    return float(np.mean(caster.cast(org, np.tile(d, (len(xy), 1)), 10.0).label == GROUND))
+
+
+@pytest.mark.parametrize('family', VEGETATION_FAMILIES)
+def test_families_build_within_their_heights_and_same_seed_same_mesh(family):
+    terrain = Terrain(TerrainConfig(amplitude=0.0), np.random.default_rng(0), (-2, -2), (2, 2))
+    tops = []
+    for k in range(3):
+        params = draw_vegetation(family, np.random.default_rng(k))
+        assert params['family'] == family
+        veg, cover, bushes = build_vegetation(params, terrain, np.random.default_rng(k), SQUARE,
+                                              tile=TILE)
+        again = build_vegetation(params, terrain, np.random.default_rng(k), SQUARE, tile=TILE)
+        np.testing.assert_array_equal(veg.vertices, again[0].vertices)
+        assert np.all(veg.labels == GRASS) and np.all(cover.labels == GROUND)
+        top = float(veg.vertices[:, 2].max()) if veg.n_faces else 0.0
+        assert top <= vegetation_top(params) + 1e-6 <= MAX_VEGETATION_HEIGHT + 1e-6
+        tops.append(top)
+        if family == 'bare':  # gravel and debris under 5 cm
+            assert cover.n_faces > 0 and cover.vertices[:, 2].max() < 0.05
+        if family == 'shrub':
+            assert bushes and max(b.height for b in bushes) <= SAFE_SHRUB_HEIGHT
+        if family == 'lodged':  # flattened: long blades, low tips (18 cm mean at most)
+            tips = veg.vertices.reshape(-1, 7, 3)[:, -1]
+            bases = veg.vertices.reshape(-1, 7, 3)[:, 0]
+            reach = np.hypot(*(tips - bases)[:, :2].T)
+            assert top < 0.36 and np.median(reach) > 1.5 * np.median(tips[:, 2] - bases[:, 2])
+    assert max(tops) > 0.03
+
+
+def test_dense_families_mostly_hide_the_ground():
+    """At a 30 degree depression, the dense end of the blade families lets less than half of
+    the rays through to the ground (most often far less)."""
+    terrain = Terrain(TerrainConfig(amplitude=0.0), np.random.default_rng(0), (-4, -2), (2, 2))
+    region = np.array([[-4.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-4.0, 2.0]])
+    for family, dense in [('uniform', {'density': 4500, 'height': 0.3}),
+                          ('tussock', {'density': 4500, 'height': 0.35}),
+                          ('lodged', {'density': 5000, 'height': 0.15}),
+                          ('layered', {'density': 3500, 'tall_density': 900})]:
+        params = {**draw_vegetation(family, np.random.default_rng(1)), **dense}
+        veg, _, _ = build_vegetation(params, terrain, np.random.default_rng(2), region)
+        assert _ground_share(veg, terrain, 30.0) < 0.5, family
+
+
+def test_hiding_grows_the_blades_to_the_obstacle():
+    for family in ('uniform', 'tussock', 'layered'):
+        p = draw_vegetation(family, np.random.default_rng(0))
+        h = hide_obstacle(p, 0.3)
+        assert h[{'layered': 'tall_height'}.get(family, 'height')] == 0.3
+    p = draw_vegetation('bare', np.random.default_rng(0))
+    assert hide_obstacle(p, 0.3) == p
+    with pytest.raises(SimulationError, match='unknown vegetation family'):
+        draw_vegetation('jungle', np.random.default_rng(0))
+
+
+def test_sloped_terrain_is_the_noise_on_a_plane():
+    cfg = TerrainConfig(amplitude=0.03)
+    flat = Terrain(cfg, np.random.default_rng(3), (-5, -5), (5, 5))
+    slope = SlopedTerrain(cfg, np.random.default_rng(3), (-5, -5), (5, 5), 10.0, 0.5)
+    xy = np.random.default_rng(4).uniform(-4.5, 4.5, (500, 2))
+    plane = math.tan(math.radians(10.0)) * (xy @ np.array([math.cos(0.5), math.sin(0.5)]))
+    np.testing.assert_allclose(slope.height(xy[:, 0], xy[:, 1]),
+                               flat.height(xy[:, 0], xy[:, 1]) + plane, atol=1e-9)
+    lo, hi = slope.z_range
+    assert hi - lo > 2 * 4.5 * math.tan(math.radians(10.0))
+    with pytest.raises(SimulationError, match='slope'):
+        SlopedTerrain(cfg, np.random.default_rng(0), (-1, -1), (1, 1), 60.0)
+
+
+def test_the_view_region_follows_the_slope():
+    """Rays from the sensor through the column, followed to a 12 degree slope: where they are
+    within the layer above it lies inside the region, and the flat region would miss some."""
+    sources = np.array([[-9.0, 0.0, 6.0]])
+    lo, hi = np.array([-0.8, -0.8, -1.0]), np.array([0.8, 0.8, 2.0])
+    g = math.tan(math.radians(12.0))
+    grade = np.array([-g, 0.0])  # falling away from the sensor: long grazing paths
+    region = view_region(sources, lo, hi, -0.06, 0.5, 0.0, grade=grade)
+    flat = view_region(sources, lo, hi, -0.06, 0.5, 0.0)
+    from landing_zone.sim.grass import points_in_polygon
+    rng = np.random.default_rng(0)
+    target = rng.uniform(lo, hi, (20000, 3))
+    d = target - sources[0]
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    t = np.linspace(0.0, 30.0, 3001)
+    pts = sources[0] + t[None, :, None] * d[:, None, :]
+    ground = pts[..., 0] * grade[0] + pts[..., 1] * grade[1]
+    layer = (pts[..., 2] >= ground - 0.06) & (pts[..., 2] <= ground + 0.5)
+    inside = pts[layer][:, :2]
+    assert points_in_polygon(inside, region).mean() > 0.999
+    assert points_in_polygon(inside, flat).mean() < 0.99
