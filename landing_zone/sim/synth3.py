@@ -58,6 +58,7 @@ SENSOR_FAMILIES = {'nodding': 0.3, 'line': 0.2, 'spinning': 0.15, 'rosette': 0.1
                    'elliptical': 0.2}
 FAMILY_AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')  # the hold-out axes
 _DENSITY = (1000.0, 5000.0)  # returns per m^2, log-uniform
+_FAR = 32.0  # [m] returns farther from the tile centre (on any axis) are not stored
 
 
 def _choice(rng: np.random.Generator, weights: dict[str, float]) -> str:
@@ -332,10 +333,15 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any
         how = {'speed': round(result.speed, 3)}
     timings['scan'] = time.perf_counter() - t0
     ret = result.returns
+    # Returns are stored as int16 millimetres: a ray that crossed the column high up and came
+    # down more than 32 m away (a view grazing ground that falls away) is dropped; the column
+    # only loses a few pass-throughs near its top.
+    far = np.any(np.abs(ret.points) > _FAR, axis=1)
+    if far.any():
+        keep = ~far
+        ret = type(ret)(ret.points[keep], ret.labels[keep], ret.times[keep], ret.line[keep],
+                        ret.line_origins, ret.line_times).compact_lines()
     mm = np.rint(ret.points * 1000.0)
-    if np.any(np.abs(mm) > np.iinfo(np.int16).max):
-        raise SimulationError(f'synth3 scene {index}: a return lies more than 32 m from the '
-                              'tile')
     if len(ret.line_times) > np.iinfo(np.uint16).max:
         raise SimulationError(f'synth3 scene {index}: more than 65535 scan lines')
     params = dict(plan)
@@ -344,6 +350,7 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any
         'obstacle': (dict(obstacle.to_json(), **inst.to_json()) if obstacle is not None
                      else None),
         'n_returns': int(len(ret)), 'density': round(result.density, 1),
+        **({'far_dropped': int(far.sum())} if far.any() else {}),
         'scan_time': round(result.duration, 4), 'n_faces': int(world.grass.n_faces),
         'bushes': len(bushes), 'region_m2': round(float(np.prod(hi - lo)), 2),
         'seed': int(seed), **how})
