@@ -492,6 +492,58 @@ class Assessor:
             n_returns=st.n_returns.ravel().copy(), sites=sites,
             footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp)
 
+    def export_state(self) -> dict[str, np.ndarray]:
+        """Copies of the map's counts and the tiles' results, taken under the locks at one
+        moment (between two clouds), for :mod:`landing_zone.snapshot`."""
+        with self._map_lock, self._state_lock:
+            out = {f'map.{k}': v for k, v in self.map.export_state().items()}
+            st = self._state
+            out['tiles.origin'] = st.origin.copy()
+            for name in _TileState._FIELDS:
+                out[f'tiles.{name}'] = getattr(st, name).copy()
+            out['placed_z'] = np.array([self._placed_z], np.uint8)
+            out['stamp'] = np.array([np.nan if self._stamp is None else self._stamp])
+        return out
+
+    def import_state(self, state: dict[str, np.ndarray], tiles: bool = True) -> None:
+        """Restore :meth:`export_state`'s arrays into this assessor (same configuration).
+
+        Args:
+            state: the arrays.
+            tiles: restore the tiles' results too; False (another model judged them) marks
+                every tile for the next pass instead.
+
+        Raises:
+            ConfigError: the arrays do not fit this assessor's map or tiles.
+        """
+        from landing_zone.errors import ConfigError
+
+        with self._map_lock, self._state_lock:
+            self.map.import_state({k[4:]: v for k, v in state.items() if k.startswith('map.')})
+            fresh = _TileState(self._tile_origin(), self._n_tiles)
+            if tiles:
+                origin = state.get('tiles.origin')
+                if not isinstance(origin, np.ndarray) or origin.shape != (2,) or \
+                        not np.array_equal(origin, fresh.origin):
+                    raise ConfigError('tile state origin does not match the map window')
+                for name in _TileState._FIELDS:
+                    a = state.get(f'tiles.{name}')
+                    want = getattr(fresh, name)
+                    if not isinstance(a, np.ndarray) or a.shape != want.shape or \
+                            a.dtype != want.dtype:
+                        raise ConfigError(f'tile state {name!r} does not fit {want.shape} '
+                                          f'{want.dtype}')
+                    setattr(fresh, name, a.copy())
+            else:
+                self.map.mark_tile_size(self.tile_vox)
+            self._state = fresh
+            placed = state.get('placed_z')
+            self._placed_z = bool(placed[0]) if isinstance(placed, np.ndarray) and \
+                placed.size else True
+            stamp = state.get('stamp')
+            self._stamp = float(stamp[0]) if isinstance(stamp, np.ndarray) and stamp.size \
+                and np.isfinite(stamp[0]) else None
+
     def invalidate(self) -> None:
         """Judge every tile again at the next pass (after a change of the tiles' settings)."""
         with self._map_lock:

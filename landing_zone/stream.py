@@ -178,8 +178,14 @@ class Stream:
 
     # -- clouds -----------------------------------------------------------------------------
 
-    def add_cloud_msg(self, msg: Any) -> None:
-        """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted."""
+    def add_cloud_msg(self, msg: Any, arrival: float | None = None) -> None:
+        """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted.
+
+        Args:
+            msg: the cloud.
+            arrival: when it was received (``clock`` seconds), for the cloud-to-grid latency;
+                default now (the node passes the time its subscription took the message).
+        """
         from msg_adapters.pointcloud import cloud_to_xyz
 
         self.received_clouds += 1
@@ -201,7 +207,14 @@ class Stream:
             return
         if nonfinite:
             self.dropped_points['nonfinite'] += nonfinite
-        self._accept(stamp_ns, xyz)
+        self._accept(stamp_ns, xyz, arrival)
+
+    def reject_cloud(self, reason: str, message: str, n_points: int = 0) -> None:
+        """Count a cloud received but refused before it could be read (``reason`` one of
+        :data:`CLOUD_REASONS`), as :meth:`add_cloud_msg` counts its own refusals."""
+        self.received_clouds += 1
+        self.received_points += int(n_points)
+        self._drop_cloud(reason, n_points, message)
 
     def add_cloud(self, stamp_ns: int, xyz: np.ndarray, frame_id: str | None = None) -> None:
         """Add a cloud given as arrays: (N, 3) returns in the fixed frame at ``stamp_ns``."""
@@ -223,7 +236,7 @@ class Stream:
             pts = pts[finite]
         self._accept(int(stamp_ns), pts)
 
-    def _accept(self, stamp_ns: int, xyz: np.ndarray) -> None:
+    def _accept(self, stamp_ns: int, xyz: np.ndarray, arrival: float | None = None) -> None:
         if self._newest_cloud_ns is not None and stamp_ns < self._newest_cloud_ns:
             self._drop_cloud('out_of_order', len(xyz),
                              f'cloud dropped: stamp {stamp_ns / NS:.3f} s is older than a '
@@ -235,7 +248,7 @@ class Stream:
             self._drop_cloud('queue_full', len(old.xyz),
                              f'cloud dropped: {self.config.max_pending} clouds already wait '
                              'for a pose')
-        self._pending.append(_Cloud(stamp_ns, xyz, self.clock()))
+        self._pending.append(_Cloud(stamp_ns, xyz, self.clock() if arrival is None else arrival))
         self._drain(final=False)
 
     def _drop_cloud(self, reason: str, n_points: int, message: str) -> None:
