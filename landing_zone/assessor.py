@@ -550,6 +550,11 @@ class Assessor:
             self.map.mark_tile_size(self.tile_vox)
 
     @property
+    def last_stamp(self) -> float | None:
+        """Stamp [s] of the newest cloud integrated (None before any)."""
+        return self._stamp
+
+    @property
     def last(self) -> Assessment | None:
         """The most recent assessment, if any."""
         return self._last
