@@ -57,16 +57,20 @@ def _root() -> None:
 
 @app.command(help='Run the project\'s performance benchmarks and print their figures.\n\n'
                   'Examples:\n\n  landing-zone bench\n\n  landing-zone bench integrate\n\n'
-                  '  landing-zone bench integrate --batches 50')
+                  '  landing-zone bench integrate --batches 50\n\n'
+                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
-        help='Benchmarks to run (integrate, simulate, assess, replay, insert); '
-             'default all.')] = None,
-    batches: Annotated[int, typer.Option(help='Batches of returns per measurement.')] = 30,
+        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak); '
+             'default all but live and soak.')] = None,
+    batches: Annotated[int, typer.Option(
+        help='Batches of returns per measurement (live: 3 per second of each rate).')] = 30,
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,
+    minutes: Annotated[Optional[float], typer.Option(
+        help='Length of the soak [min] (default 2).', min=0.1)] = None,
 ) -> None:
     from landing_zone import bench as bench_mod
-    bench_mod.run(which or [], batches=batches, seed=seed)
+    bench_mod.run(which or [], batches=batches, seed=seed, minutes=minutes)
 
 
 # --- replay -----------------------------------------------------------------------------------
