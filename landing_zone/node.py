@@ -372,6 +372,8 @@ class AssessorNode(Node):
         note = '' if header['tiles_restored'] else ' (made by another model: tiles judged again)'
         self.get_logger().info(f'snapshot {path} restored: {header.get("clouds", 0)} clouds '
                                f'from {time.ctime(header.get("saved_at", 0))}{note}')
+        if header.get('stamp_ns') is not None:
+            return int(header['stamp_ns'])
         stamp = self.assessor.last_stamp
         return int(round(stamp * NS)) if stamp is not None else 0
 
@@ -383,8 +385,10 @@ class AssessorNode(Node):
         if not path:
             return
         with self._snapshot_lock:
+            newest = self.stream.stamp_span[1]
             try:
-                save_snapshot(path, self.assessor)
+                save_snapshot(path, self.assessor,
+                              newest if newest is not None else self._restored)
             except SnapshotError as err:
                 self._warn('snapshot', str(err))
             self._last_snapshot = time.monotonic()

@@ -59,8 +59,15 @@ def snapshot_header(assessor: Assessor) -> dict[str, Any]:
     }
 
 
-def save_snapshot(path: str | os.PathLike[str], assessor: Assessor) -> int:
+def save_snapshot(path: str | os.PathLike[str], assessor: Assessor,
+                  stamp_ns: int | None = None) -> int:
     """Write the assessor's map and tiles to ``path`` (atomically).
+
+    Args:
+        path: the file.
+        assessor: whose map and tiles.
+        stamp_ns: the stamp of the newest cloud in the map [ns], kept exactly (the assessor
+            keeps it in float seconds), so a restored grid carries the stamp it had.
 
     Returns:
         Bytes written.
@@ -74,6 +81,7 @@ def save_snapshot(path: str | os.PathLike[str], assessor: Assessor) -> int:
     header = snapshot_header(assessor)
     header['saved_at'] = time.time()
     header['clouds'] = int(assessor.clouds)
+    header['stamp_ns'] = None if stamp_ns is None else int(stamp_ns)
     blob = save({k: np.ascontiguousarray(v) for k, v in state.items()},
                 metadata={_HEADER_KEY: json.dumps(header)})
     p = Path(path)
