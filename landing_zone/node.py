@@ -121,7 +121,7 @@ PARAMETERS: dict[str, tuple[str, tuple[float, float] | None, bool]] = {
     'snapshot.period': ('Seconds between two snapshots (wall time).', (1.0, 86400.0), False),
 }
 # The node's own parameters and their defaults (region_center has no default: unset = follow).
-NODE_DEFAULTS: dict[str, Any] = {'qos_depth': 5, 'qos_reliability': 'best_effort',
+NODE_DEFAULTS: dict[str, Any] = {'qos_depth': 50, 'qos_reliability': 'best_effort',
                                  'diagnostics_period': 1.0, 'warn_period': 5.0,
                                  'snapshot.path': '', 'snapshot.period': 10.0}
 QOS_RELIABILITY = {'best_effort': ReliabilityPolicy.BEST_EFFORT,
