@@ -24,7 +24,9 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
 
 Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
 this). The map is guarded by a lock held only while rays are integrated or counts are read; the
-network runs outside it, so integration never waits for inference.
+network runs outside it, so integration never waits for inference. A pass can also be split:
+:meth:`begin_assess` copies what it needs at one moment, :meth:`finish_assess` judges it while
+integration goes on (replay does this: the same passes as one after the other, overlapped).
 """
 from __future__ import annotations
 
@@ -228,6 +230,16 @@ class _TileState:
         return rel[:, 0], rel[:, 1], inside
 
 
+@dataclass
+class _Pass:
+    """What :meth:`Assessor.begin_assess` took from the map for one pass."""
+
+    todo: np.ndarray  # (K, 2) global indices of the tiles to judge
+    counts: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # hits, passes, box lo
+    stamp: float | None
+    t0: float
+
+
 class Assessor:
     """Integrate clouds, judge tiles, find landing sites (docs/INTERFACES.md §4).
 
@@ -369,8 +381,8 @@ class Assessor:
         elif z_moved and not self._placed_z and ground is not None:
             self._place(*self.config.center, ground)  # type: ignore[misc]
         self._placed_z = self._placed_z or ground is not None
-        with self._state_lock:
-            self._state.move(self._tile_origin())
+        # the tiles' results follow the window at the next pass (begin_assess), not here: a
+        # pass that runs meanwhile keeps the window it began with
 
     # -- the pipeline -----------------------------------------------------------------------
 
@@ -441,23 +453,48 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
-        from landing_zone.model import predict
-        from landing_zone.tiles import tiles_from_counts
+        return self.finish_assess(self.begin_assess())
 
-        with self._assess_lock:
+    def begin_assess(self) -> _Pass:
+        """The part of a pass that sees the map at one moment, under the map's lock: the
+        tiles that changed, a copy of their counts, the window. Quick (a copy); integration
+        may go on while :meth:`finish_assess` judges the copy, on this thread or another.
+
+        One pass at a time: this waits until the previous pass has finished, and the pass it
+        begins holds the assessor until :meth:`finish_assess` is called with it.
+        """
+        self._assess_lock.acquire()
+        try:
             t0 = time.perf_counter()
             with self._map_lock:
                 todo = self._dirty_tiles()
                 counts = self._read_counts(todo) if len(todo) else None
                 stamp = self._stamp
-            # the tiler's kernel runs on the copied counts, outside the lock
+                origin = self._tile_origin()
+            with self._state_lock:
+                # tiles that left the window are forgotten; those that entered since the last
+                # pass are among the changed ones (scrolling marks them), judged afresh now
+                self._state.move(origin)
+        except BaseException:
+            self._assess_lock.release()
+            raise
+        return _Pass(todo, counts, stamp, t0)
+
+    def finish_assess(self, job: _Pass) -> Assessment:
+        """Judge what :meth:`begin_assess` copied (the tiler's kernel and the network, outside
+        the map's lock), store the results and return every tile's state."""
+        from landing_zone.model import predict
+        from landing_zone.tiles import tiles_from_counts
+
+        try:
+            todo, counts = job.todo, job.counts
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
                                       todo) if counts is not None else None
             p = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
-                # the network runs outside the map's lock: integration goes on meanwhile
                 p[batch.valid] = predict(self.model, batch.inputs[batch.valid],
-                                         batch_size=self.config.model.batch_size)
+                                         batch_size=self.config.model.batch_size,
+                                         check_finite=False)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
@@ -470,11 +507,13 @@ class Assessor:
                     st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
                                                           batch.n_returns[inside],
                                                           self.tile_size)
-                result = self._snapshot(st, stamp)
+                result = self._snapshot(st, job.stamp)
             result.reassessed = int(len(todo))
-            result.seconds = time.perf_counter() - t0
+            result.seconds = time.perf_counter() - job.t0
             self._last = result
             return result
+        finally:
+            self._assess_lock.release()
 
     def _snapshot(self, st: _TileState, stamp: float | None) -> Assessment:
         sx, sy = st.shape
@@ -495,8 +534,9 @@ class Assessor:
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of the map's counts and the tiles' results, taken under the locks at one
         moment (between two clouds), for :mod:`landing_zone.snapshot`."""
-        with self._map_lock, self._state_lock:
+        with self._assess_lock, self._map_lock, self._state_lock:
             out = {f'map.{k}': v for k, v in self.map.export_state().items()}
+            self._state.move(self._tile_origin())
             st = self._state
             out['tiles.origin'] = st.origin.copy()
             for name in _TileState._FIELDS:

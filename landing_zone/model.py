@@ -558,8 +558,8 @@ def _inference_copy(model: SafetyNet, dtype: torch.dtype, channels_last: bool) -
 
 
 def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
-            precision: str = 'auto', logits: bool = False, channels_last: bool = True
-            ) -> np.ndarray:
+            precision: str = 'auto', logits: bool = False, channels_last: bool = True,
+            check_finite: bool = True) -> np.ndarray:
     """P(safe) of a batch of volumes (or the raw logits).
 
     Runs in eval mode under ``torch.inference_mode`` with channels-last 3D tensors; the logits
@@ -576,6 +576,9 @@ def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int
         precision: 'auto' (= 'fp32'), 'bf16' or 'fp32'.
         logits: return the uncalibrated logits instead of probabilities.
         channels_last: run in the channels-last 3D layout (faster with oneDNN and cuDNN).
+        check_finite: refuse inputs with NaN/Inf; a caller whose inputs are finite by
+            construction (the assessor's tiler writes 2 * density - 1) skips the pass over
+            them (a sixth of a 400-tile map's inference time here).
 
     Returns:
         (T,) float32.
@@ -596,7 +599,7 @@ def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int
                           f'{tuple(torch.as_tensor(inputs).shape)}')
     if x.dtype != torch.float32:
         x = x.float()
-    if x.numel() and not bool(torch.isfinite(x).all()):
+    if check_finite and x.numel() and not bool(torch.isfinite(x).all()):
         raise ConfigError('inputs contain NaN or Inf')
     _use_all_cores()
     device = next(model.parameters()).device

@@ -87,6 +87,14 @@ class _Cloud:
     arrival: float  # perf_counter() when it entered the stream
 
 
+@dataclass
+class _PassJob:
+    job: Any  # the assessor's part
+    oldest: float | None  # arrival of the oldest cloud the pass takes in
+    t0: float
+    stamp_ns: int | None  # the newest cloud it takes in
+
+
 class Stream:
     """Clouds and poses in stamp order -> the assessor's map -> assessments when due.
 
@@ -337,20 +345,30 @@ class Stream:
 
     def assess(self) -> Assessment:
         """Run one assessment pass now (clears :meth:`due`) and record its latency."""
+        return self.finish_assess(self.begin_assess())
+
+    def begin_assess(self) -> _PassJob:
+        """Begin a pass now (clears :meth:`due`): the map as it is at this moment goes into it
+        (:meth:`Assessor.begin_assess`); :meth:`finish_assess` completes it, on any thread."""
         with self._lock:
             self._due = False
             self.assessed_stamp_ns = self._last_integrated_ns
             oldest = self._oldest_unassessed
             self._oldest_unassessed = None
             self._unassessed = 0
+            stamp_ns = self.assessed_stamp_ns
         t0 = self.clock()
-        result = self.assessor.assess()
+        return _PassJob(self.assessor.begin_assess(), oldest, t0, stamp_ns)
+
+    def finish_assess(self, job: _PassJob) -> Assessment:
+        """Complete a pass begun by :meth:`begin_assess` and record its time and latency."""
+        result = self.assessor.finish_assess(job.job)
         t1 = self.clock()
         self.assessments += 1
-        self.assess_seconds.append(t1 - t0)
-        self.assess_seconds_total += t1 - t0
-        if oldest is not None:
-            self.last_latency = t1 - oldest
+        self.assess_seconds.append(t1 - job.t0)
+        self.assess_seconds_total += t1 - job.t0
+        if job.oldest is not None:
+            self.last_latency = t1 - job.oldest
             self.latencies.append(self.last_latency)
         return result
 
