@@ -202,7 +202,8 @@ def _first_cell(ox, oy, oz, dx, dy, dz, g0x, g0y, g0z, g1x, g1y, g1z,
 
 # --- batch preparation -------------------------------------------------------------------------
 
-@nb.njit(cache=True, error_model='numpy')
+# nogil: the node's executor thread takes messages while a cloud is prepared here
+@nb.njit(cache=True, nogil=True, error_model='numpy')
 def _prepare(points, origins, voxel_size, blo, bhi, sort_tile, uo, up, order, key):
     n = points.shape[0]
     single = origins.shape[0] == 1

@@ -214,8 +214,9 @@ def _tile_kernel(hits, passes, lo, tiles, tv, pad, quantile, occupied, out, grou
 
 # Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
 # costs more than the work and where DataLoader workers must not start one (see train.py).
-_tile_kernel_parallel = nb.njit(cache=True, parallel=True)(_tile_kernel)
-_tile_kernel_serial = nb.njit(cache=True)(_tile_kernel)
+# nogil: the node's other threads (taking messages, integrating) run while a map is cut.
+_tile_kernel_parallel = nb.njit(cache=True, parallel=True, nogil=True)(_tile_kernel)
+_tile_kernel_serial = nb.njit(cache=True, nogil=True)(_tile_kernel)
 _SERIAL_TILES = 4
 
 
