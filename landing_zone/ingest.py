@@ -61,7 +61,10 @@ _POLL = 0.05
 class LiveConfig:
     """The receive path's bounds; the node declares these as parameters of the same names."""
 
-    receive_queue: int = 10  # clouds that may wait for the integration thread
+    # clouds that may wait for the integration thread: 1 s at 20 Hz, room for the clouds that
+    # come while an assessment pass has the CPU (10 overflowed now and then at 0.3 M returns/s
+    # on a busy 2-core machine)
+    receive_queue: int = 20
     receive_queue_mb: float = 64.0  # ... and at most this many MB of them
     idle_flush: float = 1.0  # after this long without input [s], settle and assess the rest
 
