@@ -254,9 +254,10 @@ def test_malformed_clouds_at_100_hz_for_a_minute_are_counted_and_change_nothing(
         integrated, drops = listener.accounted(total)
         assert integrated + sum(drops.values()) == total, f'{drops} {sent}'
         # Best effort, as a LiDAR driver publishes: DDS may lose a message now and then (with
-        # the node's history of 50, about one in 6000 here). A lost one is counted as a
-        # sequence gap; every other is counted under its own reason.
-        lost = drops['transport'] + drops['missed_at_start']
+        # the node's history of 50, about one in 6000 here), and on a busy machine the receive
+        # queue (20 messages, 0.16 s of this stream) may overflow. Such a cloud is counted
+        # as a sequence gap or as overload; every other under its own reason.
+        lost = drops['transport'] + drops['missed_at_start'] + drops['overload']
         short = {r: n - drops[r] for r, n in sent['by_reason'].items()}
         assert all(v >= 0 for v in short.values()), f'{drops} {sent}'
         lost_good = sent['good_clouds'] - integrated
