@@ -301,6 +301,7 @@ class Assessor:
         self._map_lock = threading.Lock()  # the map and the tile window's placement
         self._state_lock = threading.Lock()  # the tile results
         self._assess_lock = threading.Lock()  # one assessment pass at a time
+        self._invalidated = False  # every tile to be judged again at the next pass
         self.map: DensityMap = DensityMap(cfg.map, tile_vox=self.tile_vox)
         self.stats: IntegrationStats = IntegrationStats()
         self.clouds = 0
@@ -467,6 +468,9 @@ class Assessor:
         try:
             t0 = time.perf_counter()
             with self._map_lock:
+                if self._invalidated:
+                    self._invalidated = False
+                    self.map.mark_tile_size(self.tile_vox)
                 todo = self._dirty_tiles()
                 counts = self._read_counts(todo) if len(todo) else None
                 stamp = self._stamp
@@ -585,9 +589,11 @@ class Assessor:
                 and np.isfinite(stamp[0]) else None
 
     def invalidate(self) -> None:
-        """Judge every tile again at the next pass (after a change of the tiles' settings)."""
-        with self._map_lock:
-            self.map.mark_tile_size(self.tile_vox)
+        """Judge every tile again at the next pass (after a change of the tiles' settings).
+
+        Only a flag: the next pass marks the tiles, so the caller (the node's executor thread)
+        never waits for the map's lock while a cloud is integrated."""
+        self._invalidated = True
 
     @property
     def last_stamp(self) -> float | None:

@@ -143,8 +143,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
            model: str | os.PathLike[str] | None = None,
            center: Sequence[float] | None = None,
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
-           progress: bool = True, labels: str | os.PathLike[str] | None = None
-           ) -> ReplayResult:
+           progress: bool = True, labels: str | os.PathLike[str] | None = None,
+           overlap: bool = True) -> ReplayResult:
     """Assess a recorded flight as the node would, writing its outputs.
 
     Args:
@@ -160,6 +160,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         stream_config: the stream's timing; default StreamConfig().
         progress: show a tqdm progress bar (on a terminal).
         labels: SITE.labels.json; when given, the PNG marks the true obstacles.
+        overlap: judge each pass on a worker thread while the next clouds are integrated
+            (the same passes and outputs; False runs them in turn, for comparison).
 
     Returns:
         A :class:`ReplayResult`.
@@ -195,7 +197,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         writer.open()
     t_loop = time.perf_counter()
     setup = t_loop - t_start
-    passes = _Passes(stream)
+    passes = _Passes(stream, overlap)
     try:
         outputs = _Outputs(writer)
         bar = tqdm(read_messages(bag, [points_topic, pose_topic]), unit=' msg',
@@ -267,10 +269,11 @@ class _Passes:
     each pass in turn; only the wall time differs.
     """
 
-    def __init__(self, stream: Stream) -> None:
+    def __init__(self, stream: Stream, overlap: bool = True) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
         self.stream = stream
+        self.overlap = overlap
         self.count = 0
         self.waited = 0.0  # seconds the reading thread waited for a pass to finish
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='replay-assess')
@@ -284,6 +287,8 @@ class _Passes:
         stamp = job.stamp_ns if job.stamp_ns is not None else fallback_ns
         self._pending = (self._pool.submit(self.stream.finish_assess, job), stamp, diagnostics)
         self.count += 1
+        if not self.overlap:
+            self._collect(outputs)
 
     def _collect(self, outputs: _Outputs) -> None:
         if self._pending is None:
