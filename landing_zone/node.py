@@ -256,7 +256,11 @@ class AssessorNode(Node):
             def take_batch(s: Any) -> tuple[list[Any]] | None:
                 batch = []
                 while len(batch) < TAKE_BATCH:
-                    taken = take.take(s)
+                    try:
+                        taken = take.take(s)
+                    except OSError as err:  # rcl failed to take one: it shows as a gap
+                        self._warn('take', f'taking a cloud failed: {err}')
+                        break
                     if taken is None:
                         break
                     batch.append(taken)
