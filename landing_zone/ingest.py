@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import collections
 import math
+import struct
 import threading
 import time
 from collections.abc import Callable, Hashable
@@ -252,13 +253,30 @@ def decode_cloud(payload: Any) -> Any:
 
 
 def _declared_size(payload: Any) -> tuple[int, int]:
-    """(bytes, points) of a cloud as cheaply as it can be told, for the queue's bounds."""
+    """(bytes, points) of a cloud as cheaply as it can be told, for the queue's bounds and the
+    overload counts: from CDR bytes, ``height * width`` read where a PointCloud2 keeps them
+    (after the header's stamp and frame_id), 0 points if the bytes do not get that far."""
     if isinstance(payload, (bytes, bytearray, memoryview)):
-        return len(payload), 0
+        return len(payload), _cdr_points(payload)
     try:
         return len(payload.data), int(payload.width) * int(payload.height)
     except (AttributeError, TypeError, ValueError):
         return 0, 0
+
+
+def _cdr_points(data: bytes | bytearray | memoryview) -> int:
+    # encapsulation (4 bytes: byte order in the second), stamp (int32 sec, uint32 nanosec),
+    # frame_id (uint32 length with its NUL, then the characters), then uint32 height and
+    # width, 4-aligned counting from after the encapsulation
+    try:
+        order = '<' if data[1] == 1 else '>'
+        (n,) = struct.unpack_from(order + 'I', data, 12)
+        off = 16 + n
+        off += (-(off - 4)) % 4
+        height, width = struct.unpack_from(order + 'II', data, off)
+    except (IndexError, struct.error):
+        return 0
+    return int(height) * int(width)
 
 
 class LivePipeline:
@@ -304,7 +322,8 @@ class LivePipeline:
         self._draining = False  # drain() asks for a pass now, idle or not
         self._busy = threading.Lock()  # held while an item is processed (drain() waits on it)
         self._threads: list[threading.Thread] = []
-        self.errors: list[BaseException] = []  # unexpected failures of the threads
+        # the latest unexpected failures of the threads (bounded: a bug hit by every cloud)
+        self.errors: collections.deque[BaseException] = collections.deque(maxlen=20)
         self.assess_hooks: list[Callable[[], None]] = []  # run on the assessment thread
 
     # -- receiving (the executor thread) -----------------------------------------------------

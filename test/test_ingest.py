@@ -61,6 +61,24 @@ def test_queue_keeps_the_newest_clouds_within_its_bounds():
     assert q.get(0.01) is None
 
 
+def test_points_of_a_serialized_cloud_are_read_from_its_bytes(flight):
+    from landing_zone.bagio import typestore
+    from landing_zone.ingest import _declared_size
+
+    for topic, data in raw_messages(flight):
+        if topic == '/lidar/points':
+            msg = typestore().deserialize_cdr(data, 'sensor_msgs/msg/PointCloud2')
+            assert _declared_size(data) == (len(data), msg.width * msg.height)
+    assert _declared_size(b'\x00\x01\x00\x00junk') == (8, 0)
+    from msg_adapters import make_header
+    from msg_adapters.pointcloud import make_cloud, points_to_structured
+    for frame in ('', 'a', 'ab', 'abc', 'lidar_link_front'):  # every padding of the string
+        msg = make_cloud(points_to_structured(np.zeros((7, 3), np.float32)),
+                         make_header(5, frame, 'rosbags'), 'rosbags')
+        data = bytes(typestore().serialize_cdr(msg, 'sensor_msgs/msg/PointCloud2'))
+        assert _declared_size(data)[1] == 7, frame
+
+
 def test_live_config_is_checked():
     with pytest.raises(ConfigError, match='receive_queue'):
         LiveConfig(receive_queue=0).validate()
