@@ -100,8 +100,8 @@ def param(default: Any, description: str, unit: str = '',
 def _check_fields(obj: Any, prefix: str) -> None:
     for f in dataclasses.fields(obj):
         p = f.metadata.get('param')
-        if p is not None:
-            p.check(prefix + f.name, getattr(obj, f.name))
+        if p is not None:  # named as the node names it (snapshot.period, not snapshot_period)
+            p.check(p.name or prefix + f.name, getattr(obj, f.name))
 
 
 @dataclass
