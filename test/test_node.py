@@ -306,6 +306,7 @@ def test_snapshot_round_trip_restarted_node_publishes_the_same_grid(
 
     # a snapshot that is no snapshot is refused with one line; the node starts empty
     snap.write_bytes(b'\x10\x00\x00\x00\x00\x00\x00\x00{"not": "ours"}')
+    listener.last.clear()  # wait for this node's diagnostics, not the last node's
     node = start_node(*args)
     try:
         assert listener.spin_until(lambda: 'clouds integrated' in listener.diag(), 60)
