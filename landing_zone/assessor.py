@@ -26,7 +26,9 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
 
 Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
 this). The map is guarded by a lock held only while rays are integrated or counts are read; the
-network runs outside it, so integration never waits for inference.
+network runs outside it, so integration never waits for inference. A pass can also be split:
+:meth:`begin_assess` copies what it needs at one moment, :meth:`finish_assess` judges it while
+integration goes on (replay does this: the same passes as one after the other, overlapped).
 """
 from __future__ import annotations
 
@@ -264,6 +266,16 @@ class _TileState:
         return rel[:, 0], rel[:, 1], inside
 
 
+@dataclass
+class _Pass:
+    """What :meth:`Assessor.begin_assess` took from the map for one pass."""
+
+    todo: np.ndarray  # (K, 2) global indices of the tiles to judge
+    counts: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # hits, passes, box lo
+    stamp: float | None
+    t0: float
+
+
 class Assessor:
     """Integrate clouds, judge tiles, find landing sites (docs/INTERFACES.md §4).
 
@@ -328,6 +340,7 @@ class Assessor:
         self._map_lock = threading.Lock()  # the map and the tile window's placement
         self._state_lock = threading.Lock()  # the tile results
         self._assess_lock = threading.Lock()  # one assessment pass at a time
+        self._invalidated = False  # every tile to be judged again at the next pass
         self.map: DensityMap = DensityMap(cfg.map, tile_vox=self.tile_vox)
         self.stats: IntegrationStats = IntegrationStats()
         self.clouds = 0
@@ -410,8 +423,8 @@ class Assessor:
             assert self.config.center is not None  # fixed mode
             self._place(self.config.center[0], self.config.center[1], ground)
         self._placed_z = self._placed_z or ground is not None
-        with self._state_lock:
-            self._state.move(self._tile_origin())
+        # the tiles' results follow the window at the next pass (begin_assess), not here: a
+        # pass that runs meanwhile keeps the window it began with
 
     # -- the pipeline -----------------------------------------------------------------------
 
@@ -483,23 +496,53 @@ class Assessor:
         Returns:
             An :class:`Assessment` of every tile of the current window.
         """
-        from landing_zone.judging.guard import guard_p_safe, solid_structure
-        from landing_zone.judging.tiles import tiles_from_counts
+        return self.finish_assess(self.begin_assess())
 
-        with self._assess_lock:
+    def begin_assess(self) -> _Pass:
+        """The part of a pass that sees the map at one moment, under the map's lock: the
+        tiles that changed, a copy of their counts, the window. Quick (a copy); integration
+        may go on while :meth:`finish_assess` judges the copy, on this thread or another.
+
+        One pass at a time: this waits until the previous pass has finished, and the pass it
+        begins holds the assessor until :meth:`finish_assess` is called with it.
+        """
+        self._assess_lock.acquire()
+        try:
             t0 = time.perf_counter()
             with self._map_lock:
+                if self._invalidated:
+                    self._invalidated = False
+                    self.map.mark_tile_size(self.tile_vox)
                 todo = self._dirty_tiles()
                 counts = self._read_counts(todo) if len(todo) else None
                 stamp = self._stamp
-            # the tiler's kernel runs on the copied counts, outside the lock
+                origin = self._tile_origin()
+            with self._state_lock:
+                # tiles that left the window are forgotten; those that entered since the last
+                # pass are among the changed ones (scrolling marks them), judged afresh now
+                self._state.move(origin)
+        except BaseException:
+            self._assess_lock.release()
+            raise
+        return _Pass(todo, counts, stamp, t0)
+
+    def finish_assess(self, job: _Pass) -> Assessment:
+        """Judge what :meth:`begin_assess` copied (the tiler's kernel and the network, outside
+        the map's lock), store the results and return every tile's state."""
+        from landing_zone.judging.guard import guard_p_safe, solid_structure
+        from landing_zone.judging.tiles import tiles_from_counts
+
+        try:
+            todo, counts = job.todo, job.counts
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
                                       todo) if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
+                # the tiler writes 2 * density - 1: finite by construction, no check
                 p_net[batch.valid] = self._predictor(batch.inputs[batch.valid],
-                                                     batch_size=self.config.model.batch_size)
+                                                     batch_size=self.config.model.batch_size,
+                                                     check_finite=False)
             p, guard = p_net, None
             if batch is not None and counts is not None and self.config.guard.enabled:
                 # the guard reads the same counts: opaque structure above the ground caps P(safe)
@@ -527,11 +570,13 @@ class Assessor:
                     st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
                                                           batch.n_returns[inside],
                                                           self.tile_size)
-                result = self._snapshot(st, stamp)
+                result = self._snapshot(st, job.stamp)
             result.reassessed = int(len(todo))
-            result.seconds = time.perf_counter() - t0
+            result.seconds = time.perf_counter() - job.t0
             self._last = result
             return result
+        finally:
+            self._assess_lock.release()
 
     def _snapshot(self, st: _TileState, stamp: float | None) -> Assessment:
         sx, sy = st.shape
@@ -551,10 +596,70 @@ class Assessor:
             p_net=st.p_net.ravel().copy(), guard=st.guard.ravel().copy(),
             guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy())
 
+    def export_state(self) -> dict[str, np.ndarray]:
+        """Copies of the map's counts and the tiles' results, taken under the locks at one
+        moment (between two clouds), for :mod:`landing_zone.io.snapshot`."""
+        with self._assess_lock, self._map_lock, self._state_lock:
+            out = {f'map.{k}': v for k, v in self.map.export_state().items()}
+            self._state.move(self._tile_origin())
+            st = self._state
+            out['tiles.origin'] = st.origin.copy()
+            for name in _TileState._FIELDS:
+                out[f'tiles.{name}'] = getattr(st, name).copy()
+            out['placed_z'] = np.array([self._placed_z], np.uint8)
+            out['stamp'] = np.array([np.nan if self._stamp is None else self._stamp])
+        return out
+
+    def import_state(self, state: dict[str, np.ndarray], tiles: bool = True) -> None:
+        """Restore :meth:`export_state`'s arrays into this assessor (same configuration).
+
+        Args:
+            state: the arrays.
+            tiles: restore the tiles' results too; False (another model judged them) marks
+                every tile for the next pass instead.
+
+        Raises:
+            ConfigError: the arrays do not fit this assessor's map or tiles.
+        """
+        from landing_zone.errors import ConfigError
+
+        with self._map_lock, self._state_lock:
+            self.map.import_state({k[4:]: v for k, v in state.items() if k.startswith('map.')})
+            fresh = _TileState(self._tile_origin(), self._n_tiles)
+            if tiles:
+                origin = state.get('tiles.origin')
+                if not isinstance(origin, np.ndarray) or origin.shape != (2,) or \
+                        not np.array_equal(origin, fresh.origin):
+                    raise ConfigError('tile state origin does not match the map window')
+                for name in _TileState._FIELDS:
+                    a = state.get(f'tiles.{name}')
+                    want = getattr(fresh, name)
+                    if not isinstance(a, np.ndarray) or a.shape != want.shape or \
+                            a.dtype != want.dtype:
+                        raise ConfigError(f'tile state {name!r} does not fit {want.shape} '
+                                          f'{want.dtype}')
+                    setattr(fresh, name, a.copy())
+            else:
+                self.map.mark_tile_size(self.tile_vox)
+            self._state = fresh
+            placed = state.get('placed_z')
+            self._placed_z = bool(placed[0]) if isinstance(placed, np.ndarray) and \
+                placed.size else True
+            stamp = state.get('stamp')
+            self._stamp = float(stamp[0]) if isinstance(stamp, np.ndarray) and stamp.size \
+                and np.isfinite(stamp[0]) else None
+
     def invalidate(self) -> None:
-        """Judge every tile again at the next pass (after a change of the tiles' settings)."""
-        with self._map_lock:
-            self.map.mark_tile_size(self.tile_vox)
+        """Judge every tile again at the next pass (after a change of the tiles' settings).
+
+        Only a flag: the next pass marks the tiles, so the caller (the node's executor thread)
+        never waits for the map's lock while a cloud is integrated."""
+        self._invalidated = True
+
+    @property
+    def last_stamp(self) -> float | None:
+        """Stamp [s] of the newest cloud integrated (None before any)."""
+        return self._stamp
 
     def close(self) -> None:
         """Release what the assessor holds beyond memory: the map's worker threads and the

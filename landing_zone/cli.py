@@ -43,6 +43,11 @@ class DatasetName(str, Enum):
     hybrid = 'hybrid'
 
 
+class Reliability(str, Enum):
+    reliable = 'reliable'
+    best_effort = 'best_effort'
+
+
 @app.callback()
 def _root() -> None:
     # A callback keeps typer in command-group mode even while few commands exist.
@@ -53,16 +58,20 @@ def _root() -> None:
 
 @app.command(help='Run the project\'s performance benchmarks and print their figures.\n\n'
                   'Examples:\n\n  landing-zone bench\n\n  landing-zone bench integrate\n\n'
-                  '  landing-zone bench integrate --batches 50')
+                  '  landing-zone bench integrate --batches 50\n\n'
+                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
-        help='Benchmarks to run (integrate, simulate, assess, replay, insert); '
-             'default all.')] = None,
-    batches: Annotated[int, typer.Option(help='Batches of returns per measurement.')] = 30,
+        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak); '
+             'default all but live and soak.')] = None,
+    batches: Annotated[int, typer.Option(
+        help='Batches of returns per measurement (live: 3 per second of each rate).')] = 30,
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,
+    minutes: Annotated[Optional[float], typer.Option(
+        help='Length of the soak [min] (default 2).', min=0.1)] = None,
 ) -> None:
     from landing_zone import bench as bench_mod
-    bench_mod.run(which or [], batches=batches, seed=seed)
+    bench_mod.run(which or [], batches=batches, seed=seed, minutes=minutes)
 
 
 # --- replay -----------------------------------------------------------------------------------
@@ -202,14 +211,28 @@ def play(
         help='FROM:=TO topic rename (repeat for more).')] = None,
     wait: Annotated[float, typer.Option(
         help='Wait up to this many seconds for a subscriber on every topic first.')] = 0.0,
+    reliability: Annotated[Reliability, typer.Option(
+        help='QoS reliability of the publishers (a LiDAR driver\'s is best_effort).')
+    ] = Reliability.reliable,
+    loops: Annotated[int, typer.Option(
+        help='Passes over the bag; 0: until --duration ends.', min=0)] = 1,
+    restamp: Annotated[bool, typer.Option(
+        help='Shift the stamps of every pass after the first, so they keep increasing.')
+    ] = False,
+    duration: Annotated[Optional[float], typer.Option(
+        help='Stop after this many seconds.', min=0.0)] = None,
 ) -> None:
     from landing_zone.frontends.play import parse_remaps
     from landing_zone.frontends.play import play as run_play
 
     if not rate > 0:
         raise typer.BadParameter(f'must be positive, got {rate}', param_hint='--rate')
+    if loops == 0 and duration is None:
+        raise typer.BadParameter('--loops 0 plays until --duration ends; give --duration',
+                                 param_hint='--loops')
     stats = run_play(bag, rate=rate, topics=topics, remap=parse_remaps(remap),
-                     wait_subscribers=wait)
+                     wait_subscribers=wait, reliability=reliability.value, loops=loops,
+                     restamp=restamp, duration=duration)
     per = ', '.join(f'{n} on {t}' for t, n in sorted(stats.by_topic.items()))
     print(f'published {stats.messages} messages ({per}) covering {stats.bag_seconds:.1f} s in '
           f'{stats.seconds:.1f} s; at most {stats.late * 1000:.0f} ms late')

@@ -30,7 +30,10 @@ __all__ = [
     'AssessorConfig',
     'StreamConfig',
     'NodeConfig',
+    'LiveConfig',
+    'QOS_RELIABILITY',
     'PARAMETERS',
+    'live_config',
     'default_parameters',
     'configs_from_flat',
     'params_yaml',
@@ -97,8 +100,8 @@ def param(default: Any, description: str, unit: str = '',
 def _check_fields(obj: Any, prefix: str) -> None:
     for f in dataclasses.fields(obj):
         p = f.metadata.get('param')
-        if p is not None:
-            p.check(prefix + f.name, getattr(obj, f.name))
+        if p is not None:  # named as the node names it (snapshot.period, not snapshot_period)
+            p.check(p.name or prefix + f.name, getattr(obj, f.name))
 
 
 @dataclass
@@ -306,18 +309,94 @@ class StreamConfig:
 
 
 @dataclass
-class NodeConfig:
-    """The ``assessor`` node's own settings (the front end's, not the pipeline's)."""
+class LiveConfig:
+    """The live receive path's bounds (:mod:`landing_zone.frontends.ingest`), node only."""
 
-    qos_depth: int = param(5, 'History depth of the points and pose subscriptions', '',
-                           (1, 1000), read_only=True)
-    diagnostics_period: float = param(1.0, 'Time between /diagnostics messages', 's',
-                                      (0.1, 60.0), read_only=True)
+    # clouds that may wait for the integration thread: 1 s at 20 Hz, room for the clouds that
+    # come while an assessment pass has the CPU (10 overflowed now and then at 0.3 M returns/s
+    # on a busy 2-core machine)
+    receive_queue: int = param(
+        20, 'Clouds that may wait for integration; more push out the oldest (overload)', '',
+        (1, 10000), read_only=True)
+    receive_queue_mb: float = param(64.0, '... and at most this many MB of them', 'MB',
+                                    (1.0, 100000.0), read_only=True)
     idle_flush: float = param(
         1.0, 'After this long without input, waiting clouds are settled and the last ones '
         'assessed', 's', (0.05, 60.0))
+
+    def validate(self) -> None:
+        if isinstance(self.receive_queue, bool) or not isinstance(self.receive_queue, int):
+            raise ConfigError(f'receive_queue must be a positive integer, got '
+                              f'{self.receive_queue!r}')
+        _check_fields(self, '')
+
+
+# The subscriptions' reliability choices (rclpy's ReliabilityPolicy names them in the node).
+QOS_RELIABILITY = ('best_effort', 'reliable')
+
+
+@dataclass
+class NodeConfig:
+    """The ``assessor`` node's own settings (the front end's, not the pipeline's)."""
+
+    # 50: room for the clouds that arrive while the executor thread waits for the GIL (5 lost
+    # about 1 in 200 at 120 Hz on the live branch's measurements)
+    qos_depth: int = param(50, 'History depth of the points and pose subscriptions', '',
+                           (1, 1000), read_only=True)
+    qos_reliability: str = param(
+        'best_effort', 'Reliability of the subscriptions: best_effort (any publisher) or '
+        'reliable', read_only=True)
+    diagnostics_period: float = param(1.0, 'Time between /diagnostics messages', 's',
+                                      (0.1, 60.0), read_only=True)
     warn_period: float = param(5.0, 'Least time between two warnings of one kind', 's',
                                (0.0, 3600.0))
+    snapshot_path: str = param(
+        '', 'Map snapshot: saved periodically, loaded at start if it matches; empty: none',
+        read_only=True,
+        name='snapshot.path')
+    snapshot_period: float = param(10.0, 'Time between two snapshots (wall time)', 's',
+                                   (1.0, 86400.0), name='snapshot.period')
+
+    def validate(self) -> None:
+        if self.qos_reliability not in QOS_RELIABILITY:
+            raise ConfigError(f'qos_reliability must be one of {", ".join(QOS_RELIABILITY)}, '
+                              f'got {self.qos_reliability!r}')
+        _check_fields(self, '')
+
+    @classmethod
+    def from_flat(cls, flat: dict[str, Any]) -> NodeConfig:
+        """The node's settings among dotted parameters (by their parameter names); others are
+        ignored, missing ones keep their defaults.
+
+        Raises:
+            ConfigError: a value out of range or not one of the choices.
+        """
+        cfg: NodeConfig = _from_names(cls, flat)
+        return cfg
+
+
+def _from_names(cls: Any, flat: dict[str, Any]) -> Any:
+    """An instance of a flat config class from the parameters named as its fields' facts say
+    (``snapshot.path`` for ``snapshot_path``), validated."""
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        p = f.metadata.get('param')
+        name = (p.name if p is not None and p.name else f.name)
+        if name in flat:
+            kwargs[f.name] = flat[name]
+    obj = cls(**kwargs)
+    obj.validate()
+    return obj
+
+
+def live_config(flat: dict[str, Any]) -> LiveConfig:
+    """The receive path's settings among dotted parameters (others are ignored).
+
+    Raises:
+        ConfigError: a value out of range.
+    """
+    cfg: LiveConfig = _from_names(LiveConfig, flat)
+    return cfg
 
 
 def _parameter_table() -> dict[str, tuple[Any, Param]]:
@@ -336,6 +415,7 @@ def _parameter_table() -> dict[str, tuple[Any, Param]]:
         add(getattr(top, section), section + '.')
     add(StreamConfig(), '')
     add(NodeConfig(), '')
+    add(LiveConfig(), '')
     return out
 
 
@@ -446,11 +526,24 @@ def params_yaml() -> str:
         sub = getattr(top, section)
         for f in dataclasses.fields(sub):
             emit('      ', f.name, _yaml_value(getattr(sub, f.name)), f.metadata['param'])
+    nested: dict[str, list[tuple[str, Any, Param]]] = {}
     for title, obj in (('The stream (landing_zone.config.StreamConfig), shared with replay.',
                         StreamConfig()),
-                       ('The node only (landing_zone.config.NodeConfig).', NodeConfig())):
+                       ('The node only (landing_zone.config.NodeConfig).', NodeConfig()),
+                       ('The live receive path, node only (landing_zone.config.LiveConfig).',
+                        LiveConfig())):
         lines.append('')
         lines.append(f'    # {title}')
         for f in dataclasses.fields(obj):
-            emit('    ', f.name, _yaml_value(getattr(obj, f.name)), f.metadata['param'])
+            p = f.metadata['param']
+            if '.' in p.name:  # a dotted name is a nested section in the YAML
+                head, key = p.name.split('.', 1)
+                nested.setdefault(head, []).append((key, getattr(obj, f.name), p))
+                continue
+            emit('    ', f.name, _yaml_value(getattr(obj, f.name)), p)
+    for head, entries in nested.items():
+        lines.append('')
+        lines.append(f'    {head}:')
+        for key, value, p in entries:
+            emit('      ', key, _yaml_value(value), p)
     return '\n'.join(lines) + '\n'

@@ -20,4 +20,4 @@ def test_unknown_benchmark_is_one_clear_line():
     assert 'Traceback' not in out.stderr
     assert out.stderr.strip().splitlines() == [
         "landing-zone: error: unknown benchmark 'nonsense'; choose from "
-        'integrate, simulate, assess, replay, insert']
+        'integrate, simulate, assess, replay, insert, live, soak']

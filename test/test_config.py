@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from landing_zone.config import (PARAMETERS, AssessorConfig, NodeConfig, StreamConfig,
-                                 configs_from_flat, default_parameters, params_yaml)
+from landing_zone.config import (PARAMETERS, AssessorConfig, LiveConfig, NodeConfig,
+                                 StreamConfig, configs_from_flat, default_parameters, live_config,
+                                 params_yaml)
 from landing_zone.errors import ConfigError
 from landing_zone.io.params import read_params_file
 
@@ -23,16 +24,18 @@ def test_the_yaml_file_is_the_one_the_metadata_gives():
 
 
 def test_every_parameter_has_its_facts_and_a_default_inside_its_range():
-    assert len(PARAMETERS) == 37  # 28 + the guard section's 9
+    # 28 + the guard section's 9 + the live node's receive_queue, receive_queue_mb,
+    # qos_reliability, snapshot.path and snapshot.period
+    assert len(PARAMETERS) == 42
     for name, (default, p) in PARAMETERS.items():
         assert p.description and not p.description.endswith('.'), name
         if p.range is not None:
             p.check(name, default)  # the default itself is allowed
             assert p.range[0] < p.range[1], name
     # every field of the stream's and the node's configs is a parameter
-    for cls in (StreamConfig, NodeConfig):
+    for cls in (StreamConfig, NodeConfig, LiveConfig):
         for f in dataclasses.fields(cls):
-            assert f.name in PARAMETERS
+            assert (f.metadata['param'].name or f.name) in PARAMETERS
 
 
 @pytest.mark.parametrize('name', [n for n, (_, p) in PARAMETERS.items() if p.range is not None])
@@ -46,12 +49,29 @@ def test_validate_refuses_what_the_range_refuses(name):
         value = type(default)(value)
         flat = default_parameters()
         flat[name] = value
-        if name in {f.name for f in dataclasses.fields(NodeConfig)}:
-            with pytest.raises(ConfigError, match=name):
-                p.check(name, value)  # the node's own: rcl and this check refuse it
+        node_own = {f.metadata['param'].name or f.name: cls
+                    for cls in (NodeConfig, LiveConfig) for f in dataclasses.fields(cls)}
+        if name in node_own:
+            # the node's own: rcl and the node's configs refuse it
+            with pytest.raises(ConfigError, match=name.replace('.', r'\.')):
+                NodeConfig.from_flat(flat) if node_own[name] is NodeConfig else \
+                    live_config(flat)
             continue
         with pytest.raises(ConfigError, match=name.replace('.', r'\.')):
             configs_from_flat(flat)
+
+
+def test_the_node_configs_read_their_parameter_names():
+    flat = default_parameters()
+    flat.update({'snapshot.path': '/tmp/map.safetensors', 'snapshot.period': 30.0,
+                 'qos_reliability': 'reliable', 'receive_queue': 7})
+    node = NodeConfig.from_flat(flat)
+    assert (node.snapshot_path, node.snapshot_period, node.qos_reliability, node.qos_depth) == \
+        ('/tmp/map.safetensors', 30.0, 'reliable', 50)
+    assert live_config(flat).receive_queue == 7
+    flat['qos_reliability'] = 'sometimes'
+    with pytest.raises(ConfigError, match='qos_reliability must be one of best_effort, reliable'):
+        NodeConfig.from_flat(flat)
 
 
 def test_open_ends_are_refused_and_closed_ones_allowed():

@@ -12,7 +12,9 @@ import platform
 
 from landing_zone.errors import ConfigError
 
-NAMES = ('integrate', 'simulate', 'assess', 'replay', 'insert')
+NAMES = ('integrate', 'simulate', 'assess', 'replay', 'insert', 'live', 'soak')
+# What a bare `landing-zone bench` runs: the live ones need minutes and DDS, so only by name.
+DEFAULT = ('integrate', 'simulate', 'assess', 'replay', 'insert')
 
 
 def machine_line() -> str:
@@ -29,13 +31,15 @@ def machine_line() -> str:
     return f'machine: {cpu}, {os.cpu_count()} cores, Python {platform.python_version()}'
 
 
-def run(which: list[str], batches: int = 30, seed: int = 0) -> dict[str, dict]:
+def run(which: list[str], batches: int = 30, seed: int = 0,
+        minutes: float | None = None) -> dict[str, dict]:
+    """Run the named benchmarks (default: :data:`DEFAULT`); ``minutes`` is the soak's length."""
     unknown = [w for w in which if w not in NAMES]
     if unknown:
         raise ConfigError(f'unknown benchmark {unknown[0]!r}; choose from {", ".join(NAMES)}')
     print(machine_line())
     results = {}
-    for name in which or NAMES:
+    for name in which or DEFAULT:
         try:
             module = importlib.import_module(f'landing_zone.bench.{name}')
         except ModuleNotFoundError as err:
@@ -44,5 +48,8 @@ def run(which: list[str], batches: int = 30, seed: int = 0) -> dict[str, dict]:
             print(f'\n[{name}] not available yet')
             continue
         print(f'\n[{name}]')
-        results[name] = module.run(batches=batches, seed=seed)
+        if name == 'soak':
+            results[name] = module.run(batches=batches, seed=seed, minutes=minutes)
+        else:
+            results[name] = module.run(batches=batches, seed=seed)
     return results

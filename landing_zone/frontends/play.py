@@ -1,23 +1,30 @@
 """``landing-zone play``: publish a bag's messages over rclpy at the recorded (or a scaled) rate.
 
 There is no ``ros2 bag`` in a pip-installed ROS, so this is how a recorded or simulated flight
-drives the live node. Messages are read with :mod:`landing_zone.io.bags` (ROS 2 .mcap / .db3,
-ROS 1 .bag), turned into rclpy messages through their CDR bytes (rosbags serializes, rclpy
-deserializes: the wire format is the one thing both implementations share exactly) and
-published in log-time order, each at ``start + (log_time - first_log_time) / rate``.
+drives the live node. Messages are read with :class:`landing_zone.io.bags.RawBag` (ROS 2 .mcap /
+.db3, ROS 1 .bag converted to CDR) and published as they are stored, their CDR bytes handed to
+rclpy's serialized publish (the wire format is the one thing both implementations share exactly,
+and nothing is deserialized on the way), in log-time order, each at
+``start + (log_time - first_log_time) / rate``.
+
+``loops`` plays the bag again and again (a soak test); with ``restamp`` every pass after the
+first is shifted in time, log time and the ``header.stamp`` of every message that starts with a
+``std_msgs/Header`` alike, by whole bag spans, so the stamps keep increasing as a live sensor's do.
 """
 from __future__ import annotations
 
+import itertools
 import os
+import struct
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['PlayStats', 'parse_remaps', 'play', 'to_rclpy']
+__all__ = ['PlayStats', 'parse_remaps', 'play']
 
 
 @dataclass
@@ -29,6 +36,7 @@ class PlayStats:
     bag_seconds: float = 0.0  # log-time span of the messages played [s]
     seconds: float = 0.0  # wall time from the first message to the last [s]
     late: float = 0.0  # the most a message was published after its due time [s]
+    loops: int = 0  # passes over the bag begun
 
 
 def parse_remaps(remaps: Iterable[str] | None) -> dict[str, str]:
@@ -46,23 +54,12 @@ def parse_remaps(remaps: Iterable[str] | None) -> dict[str, str]:
     return out
 
 
-def to_rclpy(msg: Any, msgtype: str, cls: type) -> Any:
-    """A rosbags message as an instance of the rclpy class ``cls``, via its CDR bytes."""
-    from rclpy.serialization import deserialize_message
-
-    from msg_adapters import jazzy_typestore
-
-    try:
-        cdr = jazzy_typestore().serialize_cdr(msg, msgtype)
-    except Exception as err:  # rosbags' SerdeError and friends: a message this store can't write
-        raise BagError(f'cannot convert a {msgtype} for publishing: {err}') from err
-    return deserialize_message(bytes(cdr), cls)
-
-
 def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] | None = None,
          remap: dict[str, str] | None = None, wait_subscribers: float = 0.0,
          linger: float = 0.5, progress: bool = True, qos_depth: int = 100,
-         context: Any = None) -> PlayStats:
+         context: Any = None, reliability: str = 'reliable', loops: int = 1,
+         restamp: bool = False, duration: float | None = None,
+         on_publish: Callable[[str, int, float], None] | None = None) -> PlayStats:
     """Publish a bag's messages at their recorded rate times ``rate``.
 
     Args:
@@ -75,25 +72,35 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
         linger: keep the publishers alive this long [s] after the last message, so reliable
             transports deliver it.
         progress: show a tqdm progress bar (on a terminal).
-        qos_depth: publisher history depth (reliable, volatile).
+        qos_depth: publisher history depth (volatile).
         context: an initialised rclpy Context; default: a private one created here.
+        reliability: 'reliable' or 'best_effort' (what a LiDAR driver uses).
+        loops: passes over the bag (0: until ``duration`` ends).
+        restamp: shift the stamps of every pass after the first by whole bag spans.
+        duration: stop after this many seconds of playing [s]; None: when the loops end.
+        on_publish: called with (topic, header stamp [ns] or -1, time.monotonic() after the
+            publish) for every message (the benchmarks measure latencies from it).
 
     Returns:
         :class:`PlayStats`.
 
     Raises:
         BagError: the bag is missing, unreadable, or lacks a topic asked for.
-        ConfigError: a rate that is not positive.
+        ConfigError: a rate that is not positive, an unknown reliability.
     """
     import rclpy
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from tqdm import tqdm
 
-    from landing_zone.io.bags import bag_topics, read_messages
+    from landing_zone.io.bags import RawBag, bag_topics
     from msg_adapters import MessageTypes
 
     if not rate > 0:
         raise ConfigError(f'rate must be positive, got {rate}')
+    policies = {'reliable': ReliabilityPolicy.RELIABLE,
+                'best_effort': ReliabilityPolicy.BEST_EFFORT}
+    if reliability not in policies:
+        raise ConfigError(f'reliability must be reliable or best_effort, got {reliability!r}')
     available = bag_topics(Path(bag))
     wanted = sorted(available) if topics is None else list(topics)
     missing = [t for t in wanted if t not in available]
@@ -110,34 +117,59 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
     try:
         types = MessageTypes.rclpy()
         qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
-                         reliability=ReliabilityPolicy.RELIABLE)
+                         reliability=policies[reliability])
         pubs = {}
         for topic in wanted:
             cls = types.get(available[topic])
-            pubs[topic] = (node.create_publisher(cls, remap.get(topic, topic), qos), cls)
+            pubs[topic] = node.create_publisher(cls, remap.get(topic, topic), qos)
         if wait_subscribers > 0:
             deadline = time.monotonic() + wait_subscribers
             while time.monotonic() < deadline and not all(
-                    p.get_subscription_count() > 0 for p, _ in pubs.values()):
+                    p.get_subscription_count() > 0 for p in pubs.values()):
                 time.sleep(0.05)
         start_wall = None
         first_ns = last_ns = 0
-        bar = tqdm(read_messages(bag, wanted), unit=' msg', desc=f'play {Path(bag).name}',
-                   disable=None if progress else True, mininterval=0.5, leave=False)
-        for m in bar:
-            if start_wall is None:
-                start_wall, first_ns = time.monotonic(), m.stamp_ns
-            due = start_wall + (m.stamp_ns - first_ns) / 1e9 / rate
-            delay = due - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                stats.late = max(stats.late, -delay)
-            pub, cls = pubs[m.topic]
-            pub.publish(to_rclpy(m.msg, m.msgtype, cls))
-            stats.messages += 1
-            stats.by_topic[m.topic] = stats.by_topic.get(m.topic, 0) + 1
-            last_ns = m.stamp_ns
+        span_ns = 0
+        end = None
+        with RawBag(bag) as src:
+            stamped = {t: _starts_with_header(src, t) for t in wanted}
+            passes = itertools.count() if loops == 0 else range(loops)
+            for k in passes:
+                stats.loops += 1
+                bar = tqdm(src.messages(wanted), unit=' msg', desc=f'play {Path(bag).name}',
+                           disable=None if progress else True, mininterval=0.5, leave=False)
+                shift = k * span_ns
+                done = False
+                for m in bar:
+                    if start_wall is None:
+                        start_wall, first_ns = time.monotonic(), m.stamp_ns
+                        if duration is not None:
+                            end = start_wall + duration
+                    t_ns = m.stamp_ns + shift
+                    due = start_wall + (t_ns - first_ns) / 1e9 / rate
+                    delay = due - time.monotonic()
+                    if end is not None and due > end:
+                        done = True
+                        break
+                    if delay > 0:
+                        time.sleep(delay)
+                    else:
+                        stats.late = max(stats.late, -delay)
+                    data, stamp = bytes(m.data), -1
+                    if stamped[m.topic]:
+                        data, stamp = _restamp(data, shift if restamp else 0)
+                    pubs[m.topic].publish(data)
+                    if on_publish is not None:
+                        on_publish(m.topic, stamp, time.monotonic())
+                    stats.messages += 1
+                    stats.by_topic[m.topic] = stats.by_topic.get(m.topic, 0) + 1
+                    last_ns = t_ns
+                if k == 0:
+                    # a pass after this one starts one mean message interval after its end
+                    n = max(stats.messages - 1, 1)
+                    span_ns = (last_ns - first_ns) + (last_ns - first_ns) // n
+                if done or span_ns <= 0:
+                    break
         if start_wall is not None:
             stats.seconds = time.monotonic() - start_wall
             stats.bag_seconds = (last_ns - first_ns) / 1e9
@@ -147,3 +179,27 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
         if own:
             rclpy.try_shutdown(context=context)
     return stats
+
+
+def _starts_with_header(src: Any, topic: str) -> bool:
+    """Whether a topic's type begins with a std_msgs/Header (so its stamp sits at CDR bytes
+    4..12: right after the 4-byte encapsulation header, int32 sec and uint32 nanosec)."""
+    store, msgtype = src.types_of(topic), src.topics[topic]
+    try:
+        fields = store.fielddefs[msgtype][1]
+        first = fields[0]
+        return first[0] == 'header' and 'std_msgs/msg/Header' in repr(first[1])
+    except (KeyError, IndexError, TypeError):
+        return False
+
+
+def _restamp(data: bytes, shift_ns: int) -> tuple[bytes, int]:
+    """(CDR with its header stamp moved by ``shift_ns``, the new stamp [ns])."""
+    fmt = '>iI' if data[1] == 0 else '<iI'  # encapsulation 0x0000: big-endian CDR
+    sec, nsec = struct.unpack_from(fmt, data, 4)
+    stamp = sec * 1_000_000_000 + nsec + shift_ns
+    if shift_ns == 0:
+        return data, stamp
+    buf = bytearray(data)
+    struct.pack_into(fmt, buf, 4, *divmod(stamp, 1_000_000_000))
+    return bytes(buf), stamp

@@ -62,8 +62,10 @@ class ReplayResult:
         top_view: (N, 3) float32 subsample of the returns (for the PNG).
         timings: wall seconds by stage: ``setup`` (model, map), ``read`` (bag reading and
             deserializing), ``ingest`` (decoding and integrating clouds, poses), ``assess``
-            (tiles and network), ``write`` (building and writing the output messages),
-            ``loop`` (read + ingest + assess + write), ``report`` (JSON and PNG).
+            (tiles and network, on a thread of its own, overlapped with the rest),
+            ``assess_wait`` (what of it the loop waited for), ``write`` (building and writing
+            the output messages), ``loop`` (read + ingest + assess_wait + write), ``report``
+            (JSON and PNG).
     """
 
     assessment: Assessment
@@ -96,7 +98,7 @@ class _Outputs:
             for topic, msgtype in self.topics.items():
                 writer.add_topic(topic, msgtype)
 
-    def write(self, assessment: Assessment, stream: Stream, stamp_ns: int) -> None:
+    def write(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int) -> None:
         from msg_adapters import grid
 
         if self.writer is None:
@@ -113,7 +115,7 @@ class _Outputs:
         self.writer.write(f'{base}/markers', stamp_ns,
                           grid.markers(assessment, stamp_ns, types=t))
         self.writer.write('/diagnostics', stamp_ns,
-                          grid.diagnostics(stream.diagnostics(), stamp_ns, types=t))
+                          grid.diagnostics(diagnostics, stamp_ns, types=t))
         self.seconds += time.perf_counter() - t0
 
 
@@ -124,8 +126,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
            model: str | os.PathLike[str] | None = None,
            center: Sequence[float] | None = None,
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
-           progress: bool = True, labels: str | os.PathLike[str] | None = None
-           ) -> ReplayResult:
+           progress: bool = True, labels: str | os.PathLike[str] | None = None,
+           overlap: bool = True) -> ReplayResult:
     """Assess a recorded flight as the node would, writing its outputs.
 
     Args:
@@ -141,6 +143,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         stream_config: the stream's timing; default StreamConfig().
         progress: show a tqdm progress bar (on a terminal).
         labels: SITE.labels.json; when given, the PNG marks the true obstacles.
+        overlap: judge each pass on a worker thread while the next clouds are integrated
+            (the same passes and outputs; False runs them in turn, for comparison).
 
     Returns:
         A :class:`ReplayResult`.
@@ -170,13 +174,13 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
 
     stream.on_integrate = keep
     writer = BagWriter(out, overwrite=True) if out is not None else None
-    passes = 0
     last_ns = 0
     t_ingest = 0.0
     if writer is not None:
         writer.open()
     t_loop = time.perf_counter()
     setup = t_loop - t_start
+    passes = _Passes(stream, overlap)
     try:
         outputs = _Outputs(writer)
         bar = tqdm(read_messages(bag, [points_topic, pose_topic]), unit=' msg',
@@ -191,15 +195,17 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
                 stream.add_cloud_msg(m.msg)
             t_ingest += time.perf_counter() - t0
             if stream.due():
-                passes += _assess_and_write(stream, outputs)
+                passes.begin(outputs)
         t0 = time.perf_counter()
         stream.flush()
         t_ingest += time.perf_counter() - t0
-        if stream.unassessed or passes == 0:
-            passes += _assess_and_write(stream, outputs, fallback_ns=last_ns)
+        if stream.unassessed or passes.count == 0:
+            passes.begin(outputs, fallback_ns=last_ns)
+        passes.end(outputs)
         if writer is not None:
             writer.close()
     except BaseException:
+        passes.abort()
         if writer is not None:
             writer.abort()
         raise
@@ -214,13 +220,15 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     bag_seconds = (last_cloud_ns - first_ns) / 1e9 if first_ns is not None else 0.0
     stats['bag_seconds'] = round(bag_seconds, 3)
     assess_s = stream.assess_seconds_total
-    timings = {'setup': setup, 'read': max(loop - t_ingest - assess_s - outputs.seconds, 0.0),
-               'ingest': t_ingest, 'assess': assess_s, 'write': outputs.seconds, 'loop': loop}
+    timings = {'setup': setup,
+               'read': max(loop - t_ingest - passes.waited - outputs.seconds, 0.0),
+               'ingest': t_ingest, 'assess': assess_s, 'assess_wait': passes.waited,
+               'write': outputs.seconds, 'loop': loop}
     top = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
     if len(top) > TOP_VIEW_MAX:
         top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
     res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
-                       seconds=0.0, assessments=passes, top_view=top, timings=timings)
+                       seconds=0.0, assessments=passes.count, top_view=top, timings=timings)
     t_report = time.perf_counter()
     if report is not None:
         doc = result.to_report(stats)
@@ -236,11 +244,59 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     return res
 
 
-def _assess_and_write(stream: Stream, outputs: _Outputs, fallback_ns: int = 0) -> int:
-    assessment = stream.assess()
-    stamp_ns = stream.assessed_stamp_ns if stream.assessed_stamp_ns is not None else fallback_ns
-    outputs.write(assessment, stream, stamp_ns)
-    return 1
+class _Passes:
+    """Assessment passes overlapped with integration, with the results of one after another.
+
+    A pass begins (:meth:`Stream.begin_assess`: the map copied at that moment) right after the
+    cloud that made it due, as it would without overlap, and is judged on a worker thread while
+    the next clouds are integrated; the next pass begins only when this one has finished, and
+    the outputs are written in order. So the passes and what is written are those of running
+    each pass in turn; only the wall time differs.
+    """
+
+    def __init__(self, stream: Stream, overlap: bool = True) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.stream = stream
+        self.overlap = overlap
+        self.count = 0
+        self.waited = 0.0  # seconds the reading thread waited for a pass to finish
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='replay-assess')
+        self._pending: tuple[Any, int, dict[str, str]] | None = None
+
+    def begin(self, outputs: _Outputs, fallback_ns: int = 0) -> None:
+        self._collect(outputs)
+        job = self.stream.begin_assess()
+        # what /diagnostics says is what was true when the pass began
+        diagnostics = self.stream.diagnostics()
+        stamp = job.stamp_ns if job.stamp_ns is not None else fallback_ns
+        self._pending = (self._pool.submit(self.stream.finish_assess, job), stamp, diagnostics)
+        self.count += 1
+        if not self.overlap:
+            self._collect(outputs)
+
+    def _collect(self, outputs: _Outputs) -> None:
+        if self._pending is None:
+            return
+        future, stamp, diagnostics = self._pending
+        self._pending = None
+        t0 = time.perf_counter()
+        result = future.result()
+        self.waited += time.perf_counter() - t0
+        outputs.write(result, diagnostics, stamp)
+
+    def end(self, outputs: _Outputs) -> None:
+        self._collect(outputs)
+        self._pool.shutdown()
+
+    def abort(self) -> None:
+        if self._pending is not None:
+            self._pending[0].cancel()
+            try:
+                self._pending[0].result()
+            except BaseException:  # the error that aborts the replay is raised already
+                pass
+        self._pool.shutdown()
 
 
 def _write_json(path: Path, doc: dict[str, Any]) -> None:

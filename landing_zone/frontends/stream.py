@@ -59,6 +59,14 @@ class _Cloud:
     arrival: float  # perf_counter() when it entered the stream
 
 
+@dataclass
+class _PassJob:
+    job: Any  # the assessor's part
+    oldest: float | None  # arrival of the oldest cloud the pass takes in
+    t0: float
+    stamp_ns: int | None  # the newest cloud it takes in
+
+
 class Stream:
     """Clouds and poses in stamp order -> the assessor's map -> assessments when due.
 
@@ -152,8 +160,14 @@ class Stream:
 
     # -- clouds -----------------------------------------------------------------------------
 
-    def add_cloud_msg(self, msg: Any) -> None:
-        """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted."""
+    def add_cloud_msg(self, msg: Any, arrival: float | None = None) -> None:
+        """Add a ``sensor_msgs/PointCloud2`` (rclpy or rosbags); bad ones are counted.
+
+        Args:
+            msg: the cloud.
+            arrival: when it was received (``clock`` seconds), for the cloud-to-grid latency;
+                default now (the node passes the time its subscription took the message).
+        """
         from msg_adapters.pointcloud import cloud_to_xyz, declared_points, read_cloud_header
 
         self.received_clouds += 1
@@ -175,7 +189,14 @@ class Stream:
             return
         if nonfinite:
             self.dropped_points['nonfinite'] += nonfinite
-        self._accept(stamp_ns, xyz)
+        self._accept(stamp_ns, xyz, arrival)
+
+    def reject_cloud(self, reason: str, message: str, n_points: int = 0) -> None:
+        """Count a cloud received but refused before it could be read (``reason`` one of
+        :data:`CLOUD_REASONS`), as :meth:`add_cloud_msg` counts its own refusals."""
+        self.received_clouds += 1
+        self.received_points += int(n_points)
+        self._drop_cloud(reason, n_points, message)
 
     def add_cloud(self, stamp_ns: int, xyz: np.ndarray, frame_id: str | None = None) -> None:
         """Add a cloud given as arrays: (N, 3) returns in the fixed frame at ``stamp_ns``."""
@@ -197,7 +218,7 @@ class Stream:
             pts = pts[finite]
         self._accept(int(stamp_ns), pts)
 
-    def _accept(self, stamp_ns: int, xyz: np.ndarray) -> None:
+    def _accept(self, stamp_ns: int, xyz: np.ndarray, arrival: float | None = None) -> None:
         if self._newest_cloud_ns is not None and stamp_ns < self._newest_cloud_ns:
             self._drop_cloud('out_of_order', len(xyz),
                              f'cloud dropped: stamp {stamp_ns / NS:.3f} s is older than a '
@@ -209,7 +230,7 @@ class Stream:
             self._drop_cloud('queue_full', len(old.xyz),
                              f'cloud dropped: {self.config.max_pending} clouds already wait '
                              'for a pose')
-        self._pending.append(_Cloud(stamp_ns, xyz, self.clock()))
+        self._pending.append(_Cloud(stamp_ns, xyz, self.clock() if arrival is None else arrival))
         self._drain(final=False)
 
     def _drop_cloud(self, reason: str, n_points: int, message: str) -> None:
@@ -298,20 +319,30 @@ class Stream:
 
     def assess(self) -> Assessment:
         """Run one assessment pass now (clears :meth:`due`) and record its latency."""
+        return self.finish_assess(self.begin_assess())
+
+    def begin_assess(self) -> _PassJob:
+        """Begin a pass now (clears :meth:`due`): the map as it is at this moment goes into it
+        (:meth:`Assessor.begin_assess`); :meth:`finish_assess` completes it, on any thread."""
         with self._lock:
             self._due = False
             self.assessed_stamp_ns = self._last_integrated_ns
             oldest = self._oldest_unassessed
             self._oldest_unassessed = None
             self._unassessed = 0
+            stamp_ns = self.assessed_stamp_ns
         t0 = self.clock()
-        result = self.assessor.assess()
+        return _PassJob(self.assessor.begin_assess(), oldest, t0, stamp_ns)
+
+    def finish_assess(self, job: _PassJob) -> Assessment:
+        """Complete a pass begun by :meth:`begin_assess` and record its time and latency."""
+        result = self.assessor.finish_assess(job.job)
         t1 = self.clock()
         self.assessments += 1
-        self.assess_seconds.append(t1 - t0)
-        self.assess_seconds_total += t1 - t0
-        if oldest is not None:
-            self.last_latency = t1 - oldest
+        self.assess_seconds.append(t1 - job.t0)
+        self.assess_seconds_total += t1 - job.t0
+        if job.oldest is not None:
+            self.last_latency = t1 - job.oldest
             self.latencies.append(self.last_latency)
         return result
 

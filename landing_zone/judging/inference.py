@@ -77,8 +77,8 @@ class Predictor:
         return self._net
 
     def __call__(self, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
-                 precision: str = 'auto', logits: bool = False, channels_last: bool = True
-                 ) -> np.ndarray:
+                 precision: str = 'auto', logits: bool = False, channels_last: bool = True,
+                 check_finite: bool = True) -> np.ndarray:
         """P(safe) of a batch of volumes (or the raw logits).
 
         Runs under ``torch.inference_mode`` with channels-last 3D tensors; the logits are
@@ -94,6 +94,9 @@ class Predictor:
             precision: 'auto' (= 'fp32'), 'bf16' or 'fp32'.
             logits: return the uncalibrated logits instead of probabilities.
             channels_last: run in the channels-last 3D layout (faster with oneDNN and cuDNN).
+            check_finite: refuse inputs with NaN/Inf; a caller whose inputs are finite by
+                construction (the assessor's tiler writes 2 * density - 1) skips the pass over
+                them (a sixth of a 400-tile map's inference time here).
 
         Returns:
             (T,) float32.
@@ -115,7 +118,7 @@ class Predictor:
                               f'{tuple(torch.as_tensor(inputs).shape)}')
         if x.dtype != torch.float32:
             x = x.float()
-        if x.numel() and not bool(torch.isfinite(x).all()):
+        if check_finite and x.numel() and not bool(torch.isfinite(x).all()):
             raise ConfigError('inputs contain NaN or Inf')
         device = next(model.parameters()).device
         dtype = torch.bfloat16 if precision == 'bf16' else torch.float32
@@ -148,8 +151,8 @@ class Predictor:
 
 
 def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
-            precision: str = 'auto', logits: bool = False, channels_last: bool = True
-            ) -> np.ndarray:
+            precision: str = 'auto', logits: bool = False, channels_last: bool = True,
+            check_finite: bool = True) -> np.ndarray:
     """P(safe) of a batch of volumes with a one-shot :class:`Predictor` (see its call)."""
     with Predictor(model) as predictor:
-        return predictor(inputs, batch_size, precision, logits, channels_last)
+        return predictor(inputs, batch_size, precision, logits, channels_last, check_finite)

@@ -215,8 +215,9 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
 
 # Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
 # costs more than the work and where DataLoader workers must not start one (see train.py).
-_tile_kernel_parallel = nb.njit(cache=True, parallel=True)(_tile_kernel)
-_tile_kernel_serial = nb.njit(cache=True)(_tile_kernel)
+# nogil: the node's other threads (taking messages, integrating) run while a map is cut.
+_tile_kernel_parallel = nb.njit(cache=True, parallel=True, nogil=True)(_tile_kernel)
+_tile_kernel_serial = nb.njit(cache=True, nogil=True)(_tile_kernel)
 _SERIAL_TILES = 4
 
 

@@ -13,6 +13,7 @@ the walk itself are described in :mod:`landing_zone.mapping.raytrace`.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -682,6 +683,68 @@ class DensityMap:
         a parallel step starts them again."""
         if self._runner is not None:
             self._runner.close()
+
+    # -- state (snapshots) -------------------------------------------------------------------
+
+    def export_state(self) -> dict[str, np.ndarray]:
+        """Copies of everything the counts and the dirty record are made of (for
+        :mod:`landing_zone.io.snapshot`): the window, the hot bytes in storage order, the cold
+        blocks and the dirty tiles. :meth:`import_state` on a map of the same configuration
+        restores the same counts byte for byte."""
+        used = self._used.copy()
+        cap = max(int(used.max()) if used.size else 0, 1)
+        return {'lo': self.lo.copy(), 'tile_vox': np.array([self.tile_vox], np.int64),
+                'hits': self._hits.copy(), 'passes': self._passes.copy(),
+                'cdir': self._cdir.copy(), 'pool': self._pool[:, :cap].copy(), 'used': used,
+                'dirty': self._dirty_tiles()}
+
+    def import_state(self, state: dict[str, np.ndarray]) -> None:
+        """Restore what :meth:`export_state` gave, on a map of the same configuration.
+
+        Raises:
+            ConfigError: the arrays do not fit this map (another shape or layout).
+        """
+        def arr(name: str, dtype: Any, shape: tuple[int, ...] | None) -> np.ndarray:
+            a = state.get(name)
+            if not isinstance(a, np.ndarray) or a.dtype != np.dtype(dtype) or (
+                    shape is not None and a.shape != shape):
+                got = 'missing' if a is None else f'{getattr(a, "dtype", "?")} ' \
+                                                  f'{getattr(a, "shape", "?")}'
+                raise ConfigError(f'map state {name!r}: expected {np.dtype(dtype)} '
+                                  f'{shape if shape is not None else ""}, got {got}')
+            return a
+
+        lo = arr('lo', np.int64, (3,))
+        tile_vox = arr('tile_vox', np.int64, (1,))
+        if int(tile_vox[0]) != self.tile_vox:
+            raise ConfigError(f'map state has tiles of {int(tile_vox[0])} voxels, this map '
+                              f'{self.tile_vox}')
+        hits = arr('hits', np.uint8, self._hits.shape)
+        passes = arr('passes', np.uint8, self._passes.shape)
+        cdir = arr('cdir', np.int32, self._cdir.shape)
+        used = arr('used', np.int64, self._used.shape)
+        pool = arr('pool', np.uint8, None)
+        if pool.ndim != 3 or pool.shape[0] != self._nparts or pool.shape[2] != _COLD_BYTES \
+                or int(used.max(initial=0)) > pool.shape[1] \
+                or pool.shape[1] > self._pool_limit:
+            raise ConfigError(f'map state pool of shape {pool.shape} does not fit this map')
+        if int(cdir.max(initial=-1)) >= max(pool.shape[1], 1):
+            raise ConfigError('map state cold-block index points past its pool')
+        dirty = arr('dirty', np.int64, None)
+        if dirty.ndim != 2 or dirty.shape[1] != 2:
+            raise ConfigError(f'map state dirty tiles of shape {dirty.shape}, expected (K, 2)')
+        self._place(np.asarray(lo, np.int64))
+        self._hits[:] = hits
+        self._passes[:] = passes
+        self._cdir[:] = cdir
+        cap = max(self._pool.shape[1], pool.shape[1])
+        self._pool = np.zeros((self._nparts, cap, _COLD_BYTES), np.uint8)
+        self._pool[:, :pool.shape[1]] = pool
+        self._used[:] = used
+        self._dirty[:] = 0
+        rel = dirty - self._dirty_lo
+        keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
+        self._dirty[rel[keep, 0], rel[keep, 1]] = 1
 
     def clear(self) -> None:
         """Forget every count (the window stays where it is)."""

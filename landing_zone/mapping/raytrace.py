@@ -202,7 +202,8 @@ def _first_cell(  # type: ignore[no-untyped-def]
 
 # --- batch preparation -------------------------------------------------------------------------
 
-@nb.njit(cache=True, error_model='numpy')
+# nogil: the node's executor thread takes messages while a cloud is prepared here
+@nb.njit(cache=True, nogil=True, error_model='numpy')
 def _prepare(  # type: ignore[no-untyped-def]
         points, origins, voxel_size, blo, bhi, sort_tile, uo, up, order, key):
     n = points.shape[0]
