@@ -202,7 +202,8 @@ class GuardConfig:
     enabled: bool = param(True, 'Cap P(safe) where opaque structure stands above the ground')
     min_height: float = param(0.12, "Solid voxels count from this far above the tile's ground",
                               'm', (0.0, 2.0))
-    max_height: float = param(1.5, '... up to this height above it', 'm', (0.0, 4.0),
+    # anything taller than max_height stands in the band below it too
+    max_height: float = param(1.0, '... up to this height above it', 'm', (0.0, 4.0),
                               open_lo=True)
     min_hits: int = param(2, 'A solid voxel holds at least this many returns', '', (1, 1000))
     min_hit_ratio: float = param(
