@@ -142,8 +142,8 @@ class Patch:
 
 
 def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_lo: float,
-                z_hi: float, reach: float = 0.0, grade: np.ndarray | None = None
-                ) -> np.ndarray:
+                z_hi: float, reach: float = 0.0, grade: np.ndarray | None = None,
+                limit: float = 15.0) -> np.ndarray:
     """Where rays from ``sources`` through a box can be between heights z_lo and z_hi.
 
     Args:
@@ -153,13 +153,15 @@ def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_l
         reach: widen the region by this much on every side (blades leaning in).
         grade: (2,) the layer's planes rise by ``grade . (x, y)`` (ground on a slope: the
             layer follows it, ``z_lo`` and ``z_hi`` are then its bounds at x = y = 0).
+        limit: with ``grade``, the region ends this far from x = y = 0 [m]: a ray that grazes
+            ground falling away from the sensor meets it far off, or never.
 
     Returns:
         (K, 2) convex polygon, counter-clockwise.
     """
     if grade is not None:
         return _tilted_view_region(sources, box_lo, box_hi, z_lo, z_hi, reach,
-                                   np.asarray(grade, dtype=float))
+                                   np.asarray(grade, dtype=float), limit)
     from scipy.spatial import ConvexHull
     corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
                         for z in (box_lo[2], box_hi[2])])
@@ -179,11 +181,13 @@ def view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray, z_l
 
 
 def _tilted_view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndarray,
-                        z_lo: float, z_hi: float, reach: float, grade: np.ndarray
-                        ) -> np.ndarray:
+                        z_lo: float, z_hi: float, reach: float, grade: np.ndarray,
+                        limit: float) -> np.ndarray:
     """:func:`view_region` between the planes ``z = grade . xy + z_lo`` and ``... + z_hi``: the
     same argument (a convex cone cut by two parallel planes) with the ray parameter of each
-    plane ``t = (z0 + g . s - s_z) / ((c_z - s_z) - g . (c - s))``."""
+    plane ``t = (z0 + g . s - s_z) / ((c_z - s_z) - g . (c - s))``; a ray that meets a plane
+    only beyond ``limit`` from x = y = 0, or never, is cut where it leaves that disc (the cone
+    cut by the disc's cylinder is still convex)."""
     from scipy.spatial import ConvexHull
     corners = np.array([[x, y, z] for x in (box_lo[0], box_hi[0]) for y in (box_lo[1], box_hi[1])
                         for z in (box_lo[2], box_hi[2])])
@@ -195,11 +199,16 @@ def _tilted_view_region(sources: np.ndarray, box_lo: np.ndarray, box_hi: np.ndar
         raise SimulationError('the sensor must be above the region of interest')
     dz = (c[..., 2] - s[..., 2]) - ((c[..., 0] - s[..., 0]) * grade[0]
                                     + (c[..., 1] - s[..., 1]) * grade[1])
-    if np.any(dz >= 0):
-        raise SimulationError('a ray through the region of interest does not come down to the '
-                              'sloped ground: the slope is steeper than the view')
-    f = (planes + g_s - s[..., 2]) / dz
-    pts = (s[..., :2] + f[..., None] * (c[..., :2] - s[..., :2])).reshape(-1, 2)
+    u = c[..., :2] - s[..., :2]
+    # Where each ray leaves the disc of radius `limit`: |s + f u| = limit, the larger root.
+    uu = np.sum(u * u, axis=-1)
+    su = np.sum(s[..., :2] * u, axis=-1)
+    ss = np.sum(s[..., :2] * s[..., :2], axis=-1)
+    f_out = (-su + np.sqrt(np.maximum(su * su - uu * (ss - limit * limit), 0.0))) / uu
+    with np.errstate(divide='ignore', invalid='ignore'):
+        f = (planes + g_s - s[..., 2]) / dz
+    f = np.where((dz < 0) & (f < f_out), f, f_out)
+    pts = (s[..., :2] + f[..., None] * u).reshape(-1, 2)
     if reach > 0:
         ang = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
         ring = reach / math.cos(math.pi / 16) * np.stack([np.cos(ang), np.sin(ang)], axis=1)

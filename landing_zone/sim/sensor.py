@@ -162,7 +162,7 @@ class ScanPattern:
         if not (isinstance(self.beams, int) and 1 <= self.beams <= 256):
             raise SimulationError(f'scan beams must be an integer in [1, 256], got '
                                   f'{self.beams!r}')
-        for name, low, high in (('beam_fov', 0.0, 90.0), ('spin_rate', 0.1, 100.0),
+        for name, low, high in (('beam_fov', 0.0, 90.0), ('spin_rate', 0.1, 1000.0),
                                 ('fov', 1.0, 120.0)):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value)

@@ -101,16 +101,27 @@ def _sensor_plan(rng: np.random.Generator) -> dict[str, Any]:
     fam = _choice(rng, SENSOR_FAMILIES)
     density = _r(math.exp(rng.uniform(math.log(_DENSITY[0]), math.log(_DENSITY[1]))), 1)
     heading = _r(rng.uniform(0, 2 * math.pi))
+    # Scanners are set up as a survey would be: the spacing of returns along a scan line (or
+    # trace) about that between lines, 1 / sqrt(density), and a pass at 3-12 m/s. (A fixed
+    # pulse rate and angular step would, at low density from low up, fly tens of metres per
+    # second with lines 15 cm apart: obstacles between the lines never seen.)
+    spacing = 1.0 / math.sqrt(density)
+    speed = rng.uniform(3.0, 12.0)
     if fam == 'nodding':  # hovering beside the tile, as in synth2
         h = _r(rng.uniform(4.0, 20.0), 3)
         dep = math.radians(rng.uniform(20.0, 65.0))
-        return {'family': fam, 'density': density, 'height': h,
-                'offset': _r(-h / math.tan(dep), 3), 'resolution': _r(rng.uniform(0.05, 0.2))}
+        offset = h / math.tan(dep)
+        res = float(np.clip(math.degrees(spacing / math.hypot(h, offset)), 0.02, 0.41))
+        return {'family': fam, 'density': density, 'height': h, 'offset': _r(-offset, 3),
+                'resolution': _r(res)}
     if fam == 'line':
         h, tilt = _r(rng.uniform(4.0, 20.0), 3), _r(rng.uniform(20.0, 45.0), 2)
+        slant = h / math.cos(math.radians(tilt))
         swath = h * math.tan(math.radians(40.0)) / math.cos(math.radians(tilt))
+        res = float(np.clip(math.degrees(spacing / slant), 0.01, 0.5))
+        prr = float(np.clip(density * speed * 2.0 * swath, 50_000.0, 3_000_000.0))
         return {'family': fam, 'density': density, 'height': h, 'tilt': tilt,
-                'prr': 300_000.0, 'resolution': _r(rng.uniform(0.05, 0.15)),
+                'prr': _r(prr, 0), 'resolution': _r(res, 5),
                 'cross': _r(rng.uniform(-0.8, 0.8) * swath, 3), 'heading': heading}
     if fam == 'spinning':
         h = _r(rng.uniform(4.0, 12.0), 3)
@@ -127,11 +138,13 @@ def _sensor_plan(rng: np.random.Generator) -> dict[str, Any]:
                 'heading': heading}
     h, tilt = _r(rng.uniform(4.0, 20.0), 3), _r(rng.uniform(0.0, 25.0), 2)
     fov = _r(rng.uniform(30.0, 60.0), 2)
+    swath = 2.0 * h * math.tan(math.radians(0.5 * fov))
+    # The ellipse's front arcs follow each other speed / spin_rate apart (the back arcs fall
+    # between them): 3 cm.
     return {'family': fam, 'density': density, 'height': h, 'tilt': tilt, 'fov': fov,
-            'spin_rate': _r(rng.uniform(15.0, 40.0), 2),
-            'prr': _r(rng.uniform(100_000.0, 400_000.0), 0),
-            'cross': _r(rng.uniform(-0.8, 0.8) * h * math.tan(math.radians(0.5 * fov)), 3),
-            'heading': heading}
+            'spin_rate': _r(np.clip(speed / 0.03, 60.0, 500.0), 2),
+            'prr': _r(np.clip(density * speed * swath, 50_000.0, 3_000_000.0), 0),
+            'cross': _r(rng.uniform(-0.8, 0.8) * 0.5 * swath, 3), 'heading': heading}
 
 
 def _check_index(index: int) -> int:
