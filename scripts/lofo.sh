@@ -6,6 +6,9 @@
 #   usage: scripts/lofo.sh [WORKDIR]          (default runs/lofo; data in data/synth3*)
 # Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
 # FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); WORKERS.
+# FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
+# obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
+# FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
 set -euo pipefail
 work=${1:-runs/lofo}
 lz=${LZ:-.venv/bin/landing-zone}
@@ -13,6 +16,7 @@ train_data=${TRAIN_DATA:-data/synth3}
 test_data=${TEST_DATA:-data/synth3_test}
 epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_SAMPLES:-0}
 workers=${WORKERS:-2}
+folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}
 mkdir -p "$work"
 # The train families of synth3 (the test families are never trained on: the final model is
 # their leave-one-out model) and the vegetation families.
@@ -31,12 +35,24 @@ train_one() {  # NAME HOLD-OUT...
         2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
 }
 
-for h in $families $vegetation; do
-    train_one "lofo_${h//:/_}" "$h"
-done
-epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
-train_one final
-models=(--model "$work/final.safetensors")
-for h in $families $vegetation; do models+=(--model "$work/lofo_${h//:/_}.safetensors"); done
+# the final model first: it is what ships, and it alone already judges the test families
+(epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
+ train_one final)
+lofo_models=()
+if [ "$folds" -gt 0 ]; then
+    mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
+for g in family_folds($folds, $fold_seed): print(' '.join(g))")
+    for k in "${!groups[@]}"; do
+        # shellcheck disable=SC2086  # a group is a list of specs
+        train_one "fold${k}_of_${folds}" ${groups[$k]}
+        lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
+    done
+else
+    for h in $families $vegetation; do
+        train_one "lofo_${h//:/_}" "$h"
+        lofo_models+=(--model "$work/lofo_${h//:/_}.safetensors")
+    done
+fi
+models=(--model "$work/final.safetensors" "${lofo_models[@]}")
 "$lz" evaluate --data "$test_data" --by-family "${models[@]}" --workers "$workers" \
     --json "$work/lofo.json" | tee "$work/lofo.md"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.learn.lofo import (family_figures, family_report, hold_out,
+from landing_zone.learn.lofo import (family_figures, family_folds, family_report, hold_out,
                                      markdown_families, parse_hold_out, scene_families)
 from landing_zone.sim.dataset import simulate_dataset
 from landing_zone.sim.shards import SceneDataset
@@ -176,3 +176,19 @@ def test_train_without_a_family_and_evaluate_by_family(small, tmp_path):
     n_family = int((scene_families(ds)['obstacle'] == family).sum())
     assert fam['lofo']['obstacle'][family]['n'] == n_family > 0
     assert 'Leave one family out' in res['table'] and f'obstacle:{family}' in res['table']
+
+
+def test_family_folds_partition_the_train_families():
+    from landing_zone.sim.families import TRAIN_FAMILIES
+    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+    folds = family_folds(4, seed=0)
+    flat = [spec for fold in folds for spec in fold]
+    assert sorted(flat) == sorted([f'obstacle:{f}' for f in TRAIN_FAMILIES]
+                                  + [f'vegetation:{f}' for f in VEGETATION_FAMILIES])
+    for axis, n in (('obstacle', len(TRAIN_FAMILIES)), ('vegetation', len(VEGETATION_FAMILIES))):
+        sizes = [sum(s.startswith(axis + ':') for s in fold) for fold in folds]
+        assert max(sizes) - min(sizes) <= 1 and sum(sizes) == n and min(sizes) >= 1
+    assert family_folds(4, seed=0) == folds and family_folds(4, seed=1) != folds
+    for bad in (1, len(VEGETATION_FAMILIES) + 1):
+        with pytest.raises(ConfigError):
+            family_folds(bad)
