@@ -391,6 +391,38 @@ def evaluate(
     print(res['table'], end='')
 
 
+@app.command(help='Fit a model\'s calibration on families it never saw: the logits of '
+                  'leave-groups-out models (scripts/lofo.sh FOLDS=K) on the train scenes of the '
+                  'families each held out, pooled; P(safe) = sigmoid(logit / T + b) fitted by '
+                  'maximum likelihood and written into OUT (the weights unchanged).\n\n'
+                  'Example:\n\n  landing-zone calibrate --model runs/lofo/final.safetensors '
+                  '--fold-model runs/lofo/fold0_of_4.safetensors --fold-model '
+                  'runs/lofo/fold1_of_4.safetensors --data data/synth3 --out '
+                  'models/landing_zone.safetensors')
+def calibrate(
+    model: Annotated[Path, typer.Option(help='The model to calibrate.')],
+    fold_model: Annotated[list[Path], typer.Option(
+        help='A model trained with --hold-out; repeat for each fold.')],
+    data: Annotated[Path, typer.Option(help='The synth3 directory they were trained on.')],
+    out: Annotated[Path, typer.Option(help='Model file to write (may be --model).')],
+    scenes: Annotated[int, typer.Option(help='At most this many scenes per fold model.')] = 2000,
+    offset: Annotated[bool, typer.Option(
+        help='Fit an offset b beside the temperature (else b = 0).')] = True,
+    seed: Annotated[int, typer.Option(help='Which scenes.')] = 0,
+    workers: Annotated[int, typer.Option(help='Voxelizing processes.')] = 0,
+) -> None:
+    from landing_zone.learn.recalibrate import calibrate as run_calibrate
+
+    s = run_calibrate(model, fold_model, data, out, per_model=scenes, seed=seed, offset=offset,
+                      workers=workers, progress=True)
+    print(f'wrote {out}: T {s["temperature"]:.3f}, offset {s["offset"]:+.3f} fitted on {s["n"]} '
+          f'out-of-family scenes ({s["n_unsafe"]} unsafe); there ECE '
+          f'{s["out_of_family_ece"]["previous"]:.3f} -> {s["out_of_family_ece"]["fitted"]:.3f}, '
+          f'obstacle scenes at P(safe) >= 0.5 '
+          f'{100 * s["out_of_family_unsafe_ge_0.5"]["previous"]:.1f}% -> '
+          f'{100 * s["out_of_family_unsafe_ge_0.5"]["fitted"]:.1f}%')
+
+
 # --- simulate ---------------------------------------------------------------------------------
 
 @app.command(help='Labelled training/test patches of the paper\'s Table I sweep (synth1: boxes, '

@@ -226,3 +226,19 @@ def test_temperature_stays_finite_on_perfectly_separated_logits():
     t = fit_temperature(z, y)
     assert 0.05 < t < 1.0  # sharper, but not driven to the bound
     assert fit_temperature(z, y, prior_sigma=None) == pytest.approx(0.05, rel=1e-2)
+
+
+def test_platt_recovers_temperature_and_offset():
+    """Labels drawn from sigmoid(z / 2 - 1) give back T near 2 and b near -1; with b = 0 fixed
+    by the data (one class shifted nowhere) the offset stays near 0."""
+    from landing_zone.learn.calibration import binary_nll, fit_platt
+    rng = np.random.default_rng(3)
+    z = rng.normal(0.0, 4.0, 20000)
+    y = (rng.random(z.size) < 1.0 / (1.0 + np.exp(-(z / 2.0 - 1.0)))).astype(int)
+    t, b = fit_platt(z, y)
+    assert t == pytest.approx(2.0, rel=0.06) and b == pytest.approx(-1.0, abs=0.08)
+    assert binary_nll(z, y, t, b) < binary_nll(z, y, t, 0.0) < binary_nll(z, y)
+    y0 = (rng.random(z.size) < 1.0 / (1.0 + np.exp(-z / 0.5))).astype(int)
+    t0, b0 = fit_platt(z, y0)
+    assert t0 == pytest.approx(0.5, rel=0.1) and abs(b0) < 0.1
+    assert fit_platt(z[:1], y[:1]) == (1.0, 0.0) and fit_platt(z, np.ones_like(y)) == (1.0, 0.0)

@@ -192,3 +192,38 @@ def test_family_folds_partition_the_train_families():
     for bad in (1, len(VEGETATION_FAMILIES) + 1):
         with pytest.raises(ConfigError):
             family_folds(bad)
+
+
+def test_calibrate_on_out_of_family_logits(small, tmp_path):
+    """A fold model's logits on the scenes of the family it held out set the final model's
+    temperature and offset; the weights stay bit for bit, and P(safe) follows the new
+    calibration (real training, tiny budget)."""
+    from landing_zone.judging.checkpoint import load_model, read_metadata
+    from landing_zone.judging.inference import predict
+    from landing_zone.learn.recalibrate import calibrate, out_of_family_logits
+    from landing_zone.learn.train import TrainConfig, train
+    ds = SceneDataset(small, 'train')
+    family = Counter(scene_families(ds)['obstacle']).most_common(1)[0][0]
+    cfg = dict(epochs=1, augment_copies=1, batch_size=4, val_fraction=0.25)
+    fold, final = tmp_path / 'fold.safetensors', tmp_path / 'final.safetensors'
+    train(small, fold, TrainConfig(**cfg, hold_out=[f'obstacle:{family}']), progress=False)
+    train(small, final, TrainConfig(**cfg), progress=False)
+    z, y, info = out_of_family_logits([fold], small, per_model=100)
+    n_family = int((scene_families(ds)['obstacle'] == family).sum())
+    assert len(z) == len(y) == n_family == info[0]['scenes'] and set(y) <= {0, 1}
+    assert info[0]['hold_out'] == [f'obstacle:{family}']
+    out = tmp_path / 'calibrated.safetensors'
+    s = calibrate(final, [fold], small, out, per_model=100)
+    meta, before = read_metadata(out), read_metadata(final)
+    assert meta['weights_sha256'] == before['weights_sha256']
+    assert meta['temperature'] == pytest.approx(s['temperature'])
+    assert meta['calibration_offset'] == pytest.approx(s['offset'])
+    assert meta['calibration']['n'] == n_family and meta['training'] == before['training']
+    net, _ = load_model(out)
+    x = np.zeros((2, 1, net.config.input_size, *(net.config.input_size,) * 2), np.float32)
+    x[1] = -1.0
+    logits = predict(net, x, logits=True)
+    expected = 1.0 / (1.0 + np.exp(-(logits / s['temperature'] + s['offset'])))
+    assert np.allclose(predict(net, x), expected, atol=1e-6)
+    with pytest.raises(ConfigError, match='held no family out'):
+        out_of_family_logits([final], small)

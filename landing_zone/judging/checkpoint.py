@@ -58,6 +58,7 @@ def save_model(path: str | os.PathLike[str], model: SafetyNet,
                for k, v in model.state_dict().items()}
     meta = dict(metadata or {})
     meta.update(format=FORMAT, model=asdict(model.config), temperature=float(model.temperature),
+                calibration_offset=float(model.offset),
                 weights_sha256=_weights_digest(tensors))
     if extra_tensors:
         clash = set(extra_tensors) & set(tensors)
@@ -123,7 +124,7 @@ def load_model(path: str | os.PathLike[str], device: str | torch.device = 'cpu',
 
     Returns:
         ``(model, metadata)`` (plus the extra tensors with ``with_extra``); the model is in
-        eval mode and carries the stored temperature.
+        eval mode and carries the stored temperature and offset.
 
     Raises:
         ModelError: missing or corrupt file, or weights that do not fit the stored spec.
@@ -157,6 +158,10 @@ def load_model(path: str | os.PathLike[str], device: str | torch.device = 'cpu',
     if not (math.isfinite(temperature) and temperature > 0):
         raise ModelError(f'{p}: bad calibration temperature {temperature!r}')
     model.temperature = temperature
+    offset = float(meta.get('calibration_offset', 0.0))  # files before it: no offset
+    if not math.isfinite(offset):
+        raise ModelError(f'{p}: bad calibration offset {offset!r}')
+    model.offset = offset
     model.to(device).eval()
     if with_extra:
         return model, meta, {k: v for k, v in tensors.items() if k not in expected}

@@ -82,9 +82,9 @@ class Predictor:
         """P(safe) of a batch of volumes (or the raw logits).
 
         Runs under ``torch.inference_mode`` with channels-last 3D tensors; the logits are
-        scaled by the model's temperature. ``precision='auto'`` is float32: measured on 400
-        tiles of the paper's net, bfloat16 (weights and inputs cast, channels-last) was slower
-        everywhere we could try it: 90 s vs 3 s on an AVX2 EPYC without native bf16 (2
+        scaled by the model's temperature and offset. ``precision='auto'`` is float32: measured
+        on 400 tiles of the paper's net, bfloat16 (weights and inputs cast, channels-last) was
+        slower everywhere we could try it: 90 s vs 3 s on an AVX2 EPYC without native bf16 (2
         threads), 0.93 s vs 0.53 s on a Xeon with AMX-BF16 (16 threads), 31 ms vs 29 ms on an
         H100. ``'bf16'`` stays available (its P(safe) is within 0.02 of float32's).
 
@@ -133,7 +133,8 @@ class Predictor:
                 out[i:i + batch_size] = lg.float().cpu()
         if logits:
             return out.numpy()
-        return torch.sigmoid(out / float(model.temperature)).numpy()
+        return torch.sigmoid(out / float(model.temperature)
+                             + float(model.offset)).numpy()
 
     def close(self) -> None:
         """Put torch's thread count back (if this raised it) and drop the inference copy."""

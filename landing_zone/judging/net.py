@@ -101,7 +101,9 @@ class SafetyNet(nn.Module):
     Attributes:
         config: the :class:`SafetyNetConfig` it was built from.
         layers: the parsed spec.
-        temperature: calibration temperature; P(safe) = sigmoid(logit / temperature).
+        temperature: calibration temperature; P(safe) = sigmoid(logit / temperature + offset).
+        offset: calibration offset (0 unless fitted on families the net never saw, see
+            :mod:`landing_zone.learn.recalibrate`).
     """
 
     def __init__(self, config: SafetyNetConfig | None = None) -> None:
@@ -110,6 +112,7 @@ class SafetyNet(nn.Module):
         self.layers = self.config.validate()
         self.config.spec = format_spec(self.layers)
         self.temperature = 1.0
+        self.offset = 0.0
         shapes = layer_shapes(self.layers, self.config.input_size, self.config.spec)
         features: list[nn.Module] = []
         dense: list[nn.Module] = []

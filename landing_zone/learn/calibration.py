@@ -3,7 +3,10 @@
 A net trained with dropout and weight decay ranks tiles well but its probabilities need not
 match frequencies. Temperature scaling (Guo et al., ICML 2017) divides the logits by one scalar
 ``T`` fitted on held-out data by maximum likelihood; it changes no ranking (so no AUC), only how
-far from 0.5 the probabilities sit. Everything here treats "safe" (label 1) as the event whose
+far from 0.5 the probabilities sit. Platt scaling adds an offset ``b`` (P(safe) =
+sigmoid(logit / T + b)), which also moves where 0.5 falls: fitted on families a net never saw
+(:mod:`landing_zone.learn.recalibrate`), it says how much less safe an unfamiliar tile is than
+its logit claims. Everything here treats "safe" (label 1) as the event whose
 probability is predicted.
 """
 from __future__ import annotations
@@ -17,7 +20,7 @@ from scipy.special import expit, log_expit
 from landing_zone.errors import ConfigError
 
 __all__ = ['Reliability', 'reliability', 'expected_calibration_error', 'fit_temperature',
-           'binary_nll']
+           'fit_platt', 'binary_nll']
 
 
 @dataclass
@@ -85,9 +88,9 @@ def expected_calibration_error(p_safe, labels, bins: int = 15) -> float:
     return reliability(p_safe, labels, bins).ece
 
 
-def binary_nll(logits, labels, temperature: float = 1.0) -> float:
-    """Mean negative log-likelihood of labels under sigmoid(logits / temperature)."""
-    z = np.asarray(logits, np.float64) / temperature
+def binary_nll(logits, labels, temperature: float = 1.0, bias: float = 0.0) -> float:
+    """Mean negative log-likelihood of labels under sigmoid(logits / temperature + bias)."""
+    z = np.asarray(logits, np.float64) / temperature + bias
     y = np.asarray(labels, np.float64)
     return float(-(y * log_expit(z) + (1.0 - y) * log_expit(-z)).mean())
 
@@ -127,3 +130,39 @@ def fit_temperature(logits, labels, bounds: tuple[float, float] = (0.05, 20.0),
                           method='bounded', options={'xatol': 1e-4})
     t = float(np.exp(res.x))
     return t if np.isfinite(t) and objective(res.x) <= objective(0.0) else 1.0
+
+
+def fit_platt(logits, labels, bounds: tuple[float, float] = (0.05, 20.0),
+              prior_sigma: float | None = 1.0, bias_sigma: float | None = 4.0
+              ) -> tuple[float, float]:
+    """Temperature and offset that best explain held-out labels: P(safe) = sigmoid(logit / T + b).
+
+    Maximum likelihood with the log-normal prior of :func:`fit_temperature` on ``T`` and a
+    normal prior ``b ~ N(0, bias_sigma^2)`` (which only matters where the data say little).
+    Returns ``(1.0, 0.0)`` where it cannot be fit (one class, fewer than two logits).
+
+    Raises:
+        ConfigError: non-finite logits or bad labels.
+    """
+    from scipy.optimize import minimize
+
+    z = np.asarray(logits, np.float64).reshape(-1)
+    if not np.all(np.isfinite(z)):
+        raise ConfigError('logits must be finite')
+    _, y = _check(expit(z), labels)
+    if z.size < 2 or y.min() == y.max():
+        return 1.0, 0.0
+    n = z.size
+    lo, hi = np.log(bounds[0]), np.log(bounds[1])
+
+    def objective(v: np.ndarray) -> float:
+        log_t, b = float(v[0]), float(v[1])
+        pen = 0.0 if prior_sigma is None else 0.5 * (log_t / prior_sigma) ** 2
+        pen += 0.0 if bias_sigma is None else 0.5 * (b / bias_sigma) ** 2
+        return n * binary_nll(z, y, float(np.exp(log_t)), b) + pen
+
+    res = minimize(objective, np.zeros(2), method='L-BFGS-B', bounds=[(lo, hi), (-20.0, 20.0)])
+    t, b = float(np.exp(res.x[0])), float(res.x[1])
+    if not (np.isfinite(t) and np.isfinite(b)) or objective(res.x) > objective(np.zeros(2)):
+        return 1.0, 0.0
+    return t, b

@@ -1,0 +1,143 @@
+"""Calibration fitted on families a model never saw.
+
+``train`` fits the temperature on validation scenes of the families it trained on: P(safe) then
+means what it says on data like the training set, and nothing more. On an obstacle of a shape
+the net never saw it stays as sure as on a familiar one, and that is the failure a planner pays
+for. The leave-groups-out models (``scripts/lofo.sh`` with ``FOLDS=K``) give, for every train
+family, the logits of a net that never saw it: pooled, they are this project's best stand-in for
+a site nobody simulated. :func:`calibrate` fits ``P(safe) = sigmoid(logit / T + b)``
+(:func:`~landing_zone.learn.calibration.fit_platt`) on them and writes ``T`` and ``b`` into the
+final model, which trained on every family; its weights stay bit for bit.
+
+The fit is a transfer: the fold models saw fewer families than the final one, so their logits
+are, if anything, less sure than its own. Whether the transfer holds is measured where nothing
+was fitted: on the test families (never in any training) of synth3's test split, by
+``landing-zone evaluate --by-family``; the model card records both.
+"""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from landing_zone.errors import ConfigError, DatasetError
+
+__all__ = ['out_of_family_logits', 'calibrate']
+
+
+def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | os.PathLike,
+                         per_model: int = 2000, seed: int = 0, workers: int = 0,
+                         progress: bool = False) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Logits of every fold model on the train-split scenes of the families it held out.
+
+    Args:
+        fold_models: models trained with ``--hold-out`` (their metadata name what they left out).
+        data: the synth3 directory they were trained on (its train split is read).
+        per_model: at most this many scenes per model, drawn evenly by ``seed``.
+        seed: which scenes.
+        workers: voxelizing processes.
+
+    Returns:
+        ``(logits, labels, per-model info)``; labels 1 safe, 0 unsafe.
+
+    Raises:
+        ConfigError: a model that held nothing out.
+        DatasetError: data without families, or no held-out scene.
+    """
+    from landing_zone.config import MapConfig, TileConfig
+    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.inference import Predictor
+    from landing_zone.learn.lofo import parse_hold_out, scene_families
+    from landing_zone.learn.samples import voxelize
+    from landing_zone.learn.scenes import ScenePack
+    from landing_zone.sim.shards import SceneDataset
+
+    ds = SceneDataset(data, 'train')
+    fams = scene_families(ds)
+    logits, labels, info = [], [], []
+    for k, path in enumerate(fold_models):
+        net, meta = load_model(path, 'cpu')
+        held = parse_hold_out((meta.get('training') or {}).get('hold_out') or [])
+        if not held:
+            raise ConfigError(f'{path}: held no family out of training; out-of-family '
+                              'calibration wants fold models (train --hold-out)')
+        unseen = np.zeros(len(ds), dtype=bool)
+        for axis, family in held:
+            unseen |= fams[axis] == family
+        idx = np.flatnonzero(unseen)
+        if not idx.size:
+            raise DatasetError(f'{data}: no train scene of the families {path} held out')
+        if idx.size > per_model:
+            rng = np.random.default_rng([seed, k])
+            idx = np.sort(rng.choice(idx, per_model, replace=False))
+        pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(path).name}')
+        mcfg = MapConfig(voxel_size=float(meta.get('voxel_size', MapConfig().voxel_size)))
+        tcfg = TileConfig(**meta['tiles']) if 'tiles' in meta else TileConfig()
+        x, y = voxelize(pack, mcfg, tcfg, workers, progress, f'voxelizing {Path(path).name}')
+        with Predictor(net) as predict:
+            z = predict(x, logits=True)
+        logits.append(z)
+        labels.append(y.numpy().astype(np.int64))
+        info.append({'model': str(path), 'hold_out': [f'{a}:{f}' for a, f in held],
+                     'scenes': int(idx.size), 'unsafe': int((labels[-1] == 0).sum())})
+    return np.concatenate(logits), np.concatenate(labels), info
+
+
+def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike],
+              data: str | os.PathLike, out: str | os.PathLike, per_model: int = 2000,
+              seed: int = 0, offset: bool = True, workers: int = 0,
+              progress: bool = False) -> dict[str, Any]:
+    """Fit the calibration of ``model`` on the fold models' out-of-family logits; write ``out``.
+
+    Args:
+        model: the final model (trained on every family).
+        fold_models, data, per_model, seed, workers: see :func:`out_of_family_logits`.
+        out: the recalibrated model file (may be ``model`` itself).
+        offset: fit the offset ``b`` too (else the temperature alone, ``b = 0``).
+
+    Returns:
+        What was fitted and on what (also stored in the model's metadata, ``calibration``).
+    """
+    from landing_zone.judging.checkpoint import load_model, save_model
+    from landing_zone.learn.calibration import (binary_nll, expected_calibration_error,
+                                                fit_platt, fit_temperature)
+
+    if not fold_models:
+        raise ConfigError('give at least one fold model (--fold-model)')
+    z, y, info = out_of_family_logits(fold_models, data, per_model, seed, workers, progress)
+    if offset:
+        t, b = fit_platt(z, y)
+    else:
+        t, b = fit_temperature(z, y), 0.0
+    net, meta = load_model(model, 'cpu')
+
+    def p(temp: float, off: float) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-(z / temp + off)))
+
+    before = (float(net.temperature), float(net.offset))
+    summary = {
+        'method': 'platt' if offset else 'temperature',
+        'fitted_on': 'out-of-family logits of leave-groups-out models',
+        'data': str(data), 'seed': seed, 'per_model': per_model, 'folds': info,
+        'n': int(z.size), 'n_unsafe': int((y == 0).sum()),
+        'temperature': t, 'offset': b,
+        'previous': {'temperature': before[0], 'offset': before[1]},
+        'out_of_family_nll': {'previous': binary_nll(z, y, *before),
+                              'fitted': binary_nll(z, y, t, b)},
+        'out_of_family_ece': {'previous': expected_calibration_error(p(*before), y),
+                              'fitted': expected_calibration_error(p(t, b), y)},
+        'out_of_family_unsafe_ge_0.5': {'previous': float((p(*before)[y == 0] >= 0.5).mean()),
+                                        'fitted': float((p(t, b)[y == 0] >= 0.5).mean())},
+    }
+    net.temperature, net.offset = t, b
+    keep = {k: v for k, v in meta.items()
+            if k not in ('format', 'model', 'temperature', 'calibration_offset',
+                         'weights_sha256')}
+    save_model(out, net, {**keep, 'calibration': summary})
+    if progress:
+        print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} on '
+              f'{z.size} out-of-family scenes', file=sys.stderr)
+    return summary
