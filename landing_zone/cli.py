@@ -276,6 +276,9 @@ def train(
         help='Augmented samples of every scene per epoch.')] = 20,
     max_samples: Annotated[int, typer.Option(
         help='Cap on samples per epoch (0: none).')] = 0,
+    max_scenes: Annotated[int, typer.Option(
+        help='Train on an even subset of this many scenes (whole twin pairs; 0: all): bounds '
+             'the memory, about 16 bytes per return.')] = 0,
     val_fraction: Annotated[float, typer.Option(
         help='Share of training scenes held out for validation and calibration.')] = 0.1,
     workers: Annotated[int, typer.Option(help='Data loader processes (0: in-process).')] = 0,
@@ -309,6 +312,7 @@ def train(
     cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, momentum=momentum,
                       weight_decay=weight_decay, batch_size=batch_size,
                       augment_copies=augment_copies, max_samples=max_samples,
+                      max_scenes=max_scenes,
                       val_fraction=val_fraction, workers=workers, seed=seed,
                       device=device.value, dropout=dropout, cache_voxels=cache_voxels,
                       edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,

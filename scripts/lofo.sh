@@ -5,7 +5,8 @@
 # training state (--resume), and the dataset commands skip finished shards.
 #   usage: scripts/lofo.sh [WORKDIR]          (default runs/lofo; data in data/synth3*)
 # Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
-# FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); WORKERS.
+# FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); MAX_SCENES, FINAL_MAX_SCENES (an
+# even subset of the scenes, to bound memory: about 16 bytes per return); WORKERS.
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
@@ -15,6 +16,7 @@ lz=${LZ:-.venv/bin/landing-zone}
 train_data=${TRAIN_DATA:-data/synth3}
 test_data=${TEST_DATA:-data/synth3_test}
 epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_SAMPLES:-0}
+max_scenes=${MAX_SCENES:-0}
 workers=${WORKERS:-2}
 folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}
 mkdir -p "$work"
@@ -31,12 +33,13 @@ train_one() {  # NAME HOLD-OUT...
     for h in "$@"; do holds+=(--hold-out "$h"); done
     /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train --data "$train_data" \
         --out "$out" "${holds[@]}" --epochs "$epochs" --augment-copies "$copies" \
-        --cache-voxels "$cache" --max-samples "$max_samples" --workers "$workers" --resume \
+        --cache-voxels "$cache" --max-samples "$max_samples" --max-scenes "$max_scenes" --workers "$workers" --resume \
         2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
 }
 
 # the final model first: it is what ships, and it alone already judges the test families
 (epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
+ max_scenes=${FINAL_MAX_SCENES:-0}
  train_one final)
 lofo_models=()
 if [ "$folds" -gt 0 ]; then

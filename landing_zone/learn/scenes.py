@@ -34,7 +34,7 @@ class ScenePack:
                  params: list[dict], scene_ids: torch.Tensor) -> None:
         self.points = points  # (N, 3) float32
         self.point_offsets = point_offsets  # (S + 1,) int64
-        self.origin_index = origin_index  # (N,) int64, row in `origins` (global)
+        self.origin_index = origin_index  # (N,) int32 (int64 past 2^31 runs), row in `origins`
         self.origins = origins  # (M, 3) float32
         self.labels = labels  # (S,) int64
         self.params = params
@@ -74,7 +74,8 @@ class ScenePack:
             else:
                 table, run = np.zeros((0, 3), np.float32), np.zeros(0, np.int64)
             pts.append(p)
-            oidx.append(run + n_orig)
+            oidx.append((run + n_orig).astype(np.int32 if n_orig + len(table) < 2 ** 31
+                                              else np.int64))
             orgs.append(table)
             n_orig += len(table)
             offsets.append(offsets[-1] + len(p))
@@ -83,8 +84,10 @@ class ScenePack:
         bar.close()
         cat = (lambda a, shape, dt: torch.from_numpy(np.concatenate(a).astype(dt, copy=False))
                if a else torch.zeros(shape, dtype=torch.from_numpy(np.zeros(0, dt)).dtype))
+        # int32 rows where they fit: 4 bytes less per return (a fifth of a training set's memory)
+        idx_dt = np.int32 if n_orig < 2 ** 31 else np.int64
         return cls(cat(pts, (0, 3), np.float32), torch.tensor(offsets, dtype=torch.int64),
-                   cat(oidx, (0,), np.int64), cat(orgs, (0, 3), np.float32),
+                   cat(oidx, (0,), idx_dt), cat(orgs, (0, 3), np.float32),
                    torch.tensor(labels, dtype=torch.int64), params,
                    torch.from_numpy(idx.astype(np.int64)))
 

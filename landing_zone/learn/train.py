@@ -69,6 +69,9 @@ class TrainConfig:
     batch_size: int = 20
     augment_copies: int = 20  # augmented samples of every training scene per epoch
     max_samples: int = 0  # cap on training samples per epoch (0 = no cap)
+    # an even subset of this many scenes (whole twin pairs) after hold_out (0 = all): bounds
+    # the memory the scenes take (about 16 bytes per return: a synth3 scene 0.3 MB)
+    max_scenes: int = 0
     val_fraction: float = 0.1  # share of the training scenes held out (per class)
     workers: int = 0  # DataLoader worker processes (0 = in the training process)
     seed: int = 0
@@ -91,7 +94,7 @@ class TrainConfig:
         for name in ('epochs', 'batch_size', 'augment_copies'):
             if getattr(self, name) < 1:
                 raise ConfigError(f'{name} must be >= 1, got {getattr(self, name)}')
-        for name in ('max_samples', 'workers', 'seed', 'cache_voxels'):
+        for name in ('max_samples', 'max_scenes', 'workers', 'seed', 'cache_voxels'):
             if getattr(self, name) < 0:
                 raise ConfigError(f'{name} must be >= 0, got {getattr(self, name)}')
         for name in ('lr', 'momentum', 'weight_decay', 'z_shift', 'checkpoint_minutes'):
@@ -120,7 +123,7 @@ class TrainConfig:
 # the floating-point results).
 _RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment_copies',
                 'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift', 'yaw',
-                'cache_voxels', 'edge_drop', 'hold_out')
+                'cache_voxels', 'edge_drop', 'hold_out', 'max_scenes')
 
 # -----------------------------------------------------------------------------------------------
 # the loop
@@ -211,6 +214,13 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         from landing_zone.learn.lofo import hold_out
         source = hold_out(source, cfg.hold_out)
         source_name += f' without {", ".join(cfg.hold_out)}'
+    if cfg.max_scenes and len(source) > cfg.max_scenes:
+        from landing_zone.learn.lofo import SceneSubset
+        # twins (a safe scene and its unsafe copy) sit side by side: keep whole pairs
+        keep = np.unique(np.linspace(0, len(source) // 2 - 1, max(cfg.max_scenes // 2, 1))
+                         .round().astype(np.int64))
+        source = SceneSubset(source, np.stack([2 * keep, 2 * keep + 1], 1).reshape(-1))
+        source_name += f' ({len(source)} scenes of an even subset)'
     labels = labels_of(source)
     if len(labels) < 2:
         raise DatasetError(f'{source_name}: at least 2 training scenes needed, got '
