@@ -227,3 +227,14 @@ def test_calibrate_on_out_of_family_logits(small, tmp_path):
     assert np.allclose(predict(net, x), expected, atol=1e-6)
     with pytest.raises(ConfigError, match='held no family out'):
         out_of_family_logits([final], small)
+
+
+def test_train_on_an_even_subset_keeps_whole_pairs(small, tmp_path):
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.learn.train import TrainConfig, train
+    out = tmp_path / 'sub.safetensors'
+    train(small, out, TrainConfig(epochs=1, augment_copies=1, batch_size=4, val_fraction=0.25,
+                                  max_scenes=6), progress=False)
+    meta = read_metadata(out)
+    assert meta['n_train_scenes'] + meta['n_val_scenes'] == 6 and '6 scenes' in meta['source']
+    assert meta['training']['max_scenes'] == 6
