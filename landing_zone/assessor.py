@@ -273,10 +273,11 @@ class _TileState:
         self.grad_y = np.full(shape, np.nan, np.float64)
         self.roughness = np.full(shape, np.nan, np.float32)
         self.clearance = np.full(shape, np.nan, np.float32)
+        self.overhead = np.full(shape, np.nan, np.float32)
 
     _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns', 'p_net',
                'guard', 'guard_hits', 'guard_height', 'grad_x', 'grad_y', 'roughness',
-               'clearance')
+               'clearance', 'overhead')
 
     def move(self, origin: np.ndarray) -> None:
         """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
@@ -580,17 +581,22 @@ class Assessor:
                 p_net[batch.valid] = self._predictor(batch.inputs[batch.valid],
                                                      batch_size=self.config.model.batch_size,
                                                      check_finite=False)
-            p, guard = p_net, None
-            if batch is not None and counts is not None and self.config.guard.enabled:
-                # the guard reads the same counts: opaque structure above the ground caps P(safe)
-                guard = solid_structure(*counts, self.config.map.voxel_size, batch.index,
-                                        np.where(batch.valid, batch.ground_z, np.nan),
-                                        self.tile_vox, self.config.guard)
-                p = guard_p_safe(p_net, guard, self.config.guard)
             ground = fit_ground(*counts, self.config.map.voxel_size, batch.index,
                                 self.tile_vox, self.config.tiles.occupied_density,
                                 self.config.landing_sites.clutter_height) \
                 if batch is not None and counts is not None else None
+            p, guard = p_net, None
+            if batch is not None and counts is not None and ground is not None \
+                    and self.config.guard.enabled:
+                # the guard reads the same counts: opaque structure above the ground caps
+                # P(safe); above the ground plane where the tile has one (a slope's uphill
+                # side is ground), else above the tiler's ground
+                has = np.isfinite(ground.plane_z)
+                gz = np.where(has, ground.plane_z, batch.ground_z)
+                guard = solid_structure(*counts, self.config.map.voxel_size, batch.index,
+                                        np.where(batch.valid, gz, np.nan), self.tile_vox,
+                                        self.config.guard, grad=ground.grad)
+                p = guard_p_safe(p_net, guard, self.config.guard)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
@@ -615,6 +621,7 @@ class Assessor:
                         st.grad_y[i, j] = ground.grad[inside, 1]
                         st.roughness[i, j] = ground.roughness[inside]
                         st.clearance[i, j] = ground.clearance[inside]
+                        st.overhead[i, j] = ground.overhead[inside]
                     st.observed_fraction[i, j] = batch.observed_fraction[inside]
                     st.n_returns[i, j] = batch.n_returns[inside]
                     st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
@@ -638,7 +645,7 @@ class Assessor:
         grad = np.stack([st.grad_x, st.grad_y], axis=-1)
         has_plane = np.isfinite(st.grad_x)
         ground = GroundGrids(plane_z=np.where(has_plane, st.ground_z, np.nan), grad=grad,
-                             clearance=st.clearance)
+                             clearance=st.clearance, overhead=st.overhead)
         cand = evaluate_candidates(st.p_safe, st.confidence, origin, self.config.landing_sites,
                                    self.tile_size, ground)
         sites = find_sites(st.p_safe, st.confidence, origin, self.config.landing_sites,

@@ -126,12 +126,18 @@ def test_clearance_sees_a_bar_above_the_footprint():
     assert cand.clearance[i, j] == pytest.approx(1.5, abs=0.06)
     far = i + 2
     assert reason_names(cand.reasons[far, j]) == []
+    assert np.isinf(g.overhead[others]).all()  # nothing seen there ...
+    # ... so asking for more than the map's 2 m above the ground cannot be answered: unknown
+    cfg = SiteConfig(footprint_radius=1.0, min_clearance=2.5, min_p_safe=0.0)
+    cand = evaluate_candidates(p, p, tuple(tiles.min(axis=0)), cfg, 1.0, grid)
+    assert reason_names(cand.reasons[far, j]) == ['unknown']
+    assert reason_names(cand.reasons[i, j]) == ['clearance']  # what is seen is enough
 
 
 def grids(tiles, g) -> GroundGrids:
     nx, ny = (tiles.max(axis=0) - tiles.min(axis=0) + 1).tolist()
     return GroundGrids(g.plane_z.reshape(nx, ny), g.grad.reshape(nx, ny, 2),
-                       g.clearance.reshape(nx, ny))
+                       g.clearance.reshape(nx, ny), g.overhead.reshape(nx, ny))
 
 
 def test_no_site_beyond_the_maximum_slope_is_listed():

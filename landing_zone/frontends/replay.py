@@ -338,6 +338,7 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
     for i, j in zip(*np.nonzero(unknown)):
         ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
                                edgecolor='0.6', linewidth=0))
+    handles = _draw_reasons(ax, assessment)
     if labels is not None:
         from landing_zone.io.labels import obstacle_footprints, read_labels
 
@@ -349,6 +350,9 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
                             linewidth=2.0 if rank == 1 else 1.0))
         ax.annotate(str(rank), (site.x, site.y), color='tab:blue', ha='center', va='center',
                     fontsize=9, weight='bold')
+    if handles:
+        ax.legend(handles=handles, loc='upper left', fontsize=7, framealpha=0.8,
+                  title='footprint centred here rejected for', title_fontsize=7)
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect('equal')
@@ -365,6 +369,36 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
         raise BagError(f'cannot write {path}: {err.strerror}') from err
     finally:
         plt.close(fig)
+
+
+# How the PNG marks a candidate left out for a limit: hatch and colour per reason.
+_REASON_HATCH = {'slope': ('\\\\', 'darkorange'), 'step': ('xx', 'purple'),
+                 'clearance': ('..', 'deepskyblue')}
+
+
+def _draw_reasons(ax: Any, assessment: Assessment) -> list[Any]:
+    """Hatch the tiles whose centred footprint is left out for slope, step or clearance;
+    return the legend's handles (one per reason drawn)."""
+    from matplotlib.patches import Patch, Rectangle
+
+    from landing_zone.judging.sites import REASONS
+
+    cand = assessment.candidates
+    if cand is None:
+        return []
+    ts = assessment.tile_size
+    handles = []
+    for why, (hatch, color) in _REASON_HATCH.items():
+        bit = 1 << REASONS.index(why)
+        cells = np.argwhere(cand.reasons & bit)
+        for i, j in cells:
+            x, y = cand.center(int(i), int(j))
+            ax.add_patch(Rectangle((x - ts / 2, y - ts / 2), ts, ts, fill=False, hatch=hatch,
+                                   edgecolor=color, linewidth=0))
+        if len(cells):
+            handles.append(Patch(facecolor='none', edgecolor=color, hatch=hatch,
+                                 label=f'{why} ({len(cells)})'))
+    return handles
 
 
 def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],

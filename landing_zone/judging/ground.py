@@ -19,7 +19,9 @@ On the same hit / pass counts the tiler reads, for every tile:
    occupied voxel at least ``clutter_height`` above it (below that, grass and obstacles are the
    network's and the guard's business); the tile's clearance is the least over its columns.
    A column with nothing above the clutter is clear up to the top of the counts (the map's
-   window): clearance is "free height within the map", never more than the map can see.
+   window): clearance is "free height within the map", never more than the map can see, and
+   ``overhead`` keeps apart the height of structure actually seen (inf: none), so a site can
+   tell "something is there" from "the map does not reach that high".
 
 The fit is written by hand in one compiled kernel, parallel over tiles, because it runs on
 every assessment pass: 400 tiles of up to 400 points each take a few milliseconds here, where
@@ -55,6 +57,8 @@ class TileGround:
         roughness: (T,) float32 RMS residual of the ground points about the plane [m].
         clearance: (T,) float32 least free height above the plane over the tile's columns,
             within the counts' window [m]; NaN: no plane.
+        overhead: (T,) float32 height above the plane of the lowest structure seen above the
+            clutter [m]; inf: none within the window; NaN: no plane.
         columns: (T,) int64 columns on the final plane.
     """
 
@@ -62,6 +66,7 @@ class TileGround:
     grad: np.ndarray
     roughness: np.ndarray
     clearance: np.ndarray
+    overhead: np.ndarray
     columns: np.ndarray
 
     def __len__(self) -> int:
@@ -116,7 +121,7 @@ def _fit_plane(u, v, z, keep, n):  # type: ignore[no-untyped-def]
 
 @nb.njit(cache=True, parallel=True, nogil=True)
 def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,  # type: ignore
-                   taus, band, plane, rough, clear, ncols):
+                   taus, band, plane, rough, clear, over, ncols):
     nx, ny, nz = hits.shape
     half = 0.5 * tv * vs
     for t in nb.prange(tiles.shape[0]):
@@ -150,6 +155,7 @@ def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,
         plane[t, 0] = plane[t, 1] = plane[t, 2] = math.nan
         rough[t] = math.nan
         clear[t] = math.nan
+        over[t] = math.nan
         ncols[t] = 0
         c, a, b, m = _fit_plane(u, v, z, keep, n)
         if not math.isfinite(c):
@@ -183,6 +189,7 @@ def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,
         rough[t] = math.sqrt(ss / used)
         # clearance: the lowest occupied voxel above the clutter band, per column
         best = math.inf
+        seen = math.inf
         for i in range(tv):
             xi = x0 + i
             if xi < 0 or xi >= nx:
@@ -201,10 +208,13 @@ def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,
                         hf = np.float64(h)
                         if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
                             free = k * vs - zc
+                            if free < seen:
+                                seen = free
                             break
                 if free < best:
                     best = free
         clear[t] = best
+        over[t] = seen
 
 
 def fit_ground(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_size: float,
@@ -230,6 +240,7 @@ def fit_ground(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_size:
     plane = np.full((n, 3), np.nan)
     rough = np.full(n, np.nan)
     clear = np.full(n, np.nan)
+    over = np.full(n, np.nan)
     ncols = np.zeros(n, np.int64)
     lo_arr = np.asarray(lo, np.int64).reshape(3)
     h = np.asarray(hits)
@@ -238,8 +249,8 @@ def fit_ground(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_size:
                        np.ascontiguousarray(passes, np.uint32), lo_arr, idx, int(tile_vox),
                        float(voxel_size), float(occupied_density), float(clutter_height),
                        int(math.ceil(MIN_GROUND_COLUMNS * tile_vox * tile_vox)),
-                       np.array(_TAUS), float(_FINAL_BAND), plane, rough, clear, ncols)
+                       np.array(_TAUS), float(_FINAL_BAND), plane, rough, clear, over, ncols)
     z0 = lo_arr[2] * float(voxel_size)
     return TileGround(plane_z=plane[:, 0] + z0, grad=plane[:, 1:].copy(),
                       roughness=rough.astype(np.float32), clearance=clear.astype(np.float32),
-                      columns=ncols)
+                      overhead=over.astype(np.float32), columns=ncols)

@@ -28,8 +28,9 @@ the geometry a planner needs, over the tiles under its footprint:
 
 A candidate is left out, with every reason that applies (:data:`REASONS`): ``obstacle`` (P(all
 tiles safe) below ``min_p_safe``), ``slope`` (above ``max_slope_deg``), ``step`` (above
-``max_step``), ``clearance`` (below ``min_clearance``), ``unknown`` (a tile under it unjudged,
-without a ground plane, or outside the grid). Only candidates without any reason are listed.
+``max_step``), ``clearance`` (structure seen lower than ``min_clearance`` over it),
+``unknown`` (a tile under it unjudged, without a ground plane, outside the grid, or the map not
+reaching ``min_clearance`` above its ground). Only candidates without any reason are listed.
 
 The listed candidates are ranked by their probability and thinned by greedy non-maximum
 suppression, so the top K are distinct places (centres at least ``min_separation`` apart, by
@@ -111,11 +112,14 @@ class GroundGrids:
         plane_z: ground height of each tile's plane at its centre [m].
         grad: (X, Y, 2) the planes' gradients (dz/dx, dz/dy).
         clearance: each tile's free height above its ground, within the map [m].
+        overhead: height of the lowest structure seen above each tile's ground [m] (inf:
+            none); None: not known apart from ``clearance``.
     """
 
     plane_z: np.ndarray
     grad: np.ndarray
     clearance: np.ndarray
+    overhead: np.ndarray | None = None
 
 
 @dataclass
@@ -337,6 +341,17 @@ def site_geometry(ground: GroundGrids, radius: float, tile_size: float
     return slope, step, clearance, normal, complete
 
 
+def _footprint_min(values: np.ndarray, radius: float, tile_size: float) -> np.ndarray:
+    """The least of ``values`` under a footprint centred on every tile (NaN ignored)."""
+    mask = footprint_mask(radius, tile_size)
+    m = mask.shape[0] // 2
+    view = _shifted(np.asarray(values, np.float64), m)
+    out = np.full(np.shape(values), np.nan)
+    for a, b in np.argwhere(mask):
+        out = np.fmin(out, view(int(a) - m, int(b) - m))
+    return out
+
+
 def evaluate_candidates(p_safe: np.ndarray, confidence: np.ndarray, origin: tuple[int, int],
                         config: SiteConfig | None = None, tile_size: float = 1.0,
                         ground: GroundGrids | None = None) -> Candidates:
@@ -371,7 +386,16 @@ def evaluate_candidates(p_safe: np.ndarray, confidence: np.ndarray, origin: tupl
         with np.errstate(invalid='ignore'):
             reasons[slope > cfg.max_slope_deg] |= SLOPE
             reasons[step > cfg.max_step] |= STEP
-            reasons[clearance < cfg.min_clearance] |= CLEARANCE
+            low = clearance < cfg.min_clearance
+            if ground.overhead is not None:
+                # structure seen lower than the limit: clearance; only the map's top lower
+                # than it: the map cannot tell, unknown
+                seen = _footprint_min(ground.overhead, cfg.footprint_radius,
+                                      tile_size) < cfg.min_clearance
+                reasons[low & seen] |= CLEARANCE
+                reasons[low & ~seen] |= UNKNOWN
+            else:
+                reasons[low] |= CLEARANCE
         reasons[~complete] |= UNKNOWN
     else:
         slope = step = clearance = np.full(shape, np.nan)
