@@ -572,8 +572,13 @@ class Assessor:
 
         try:
             todo, counts = job.todo, job.counts
+            # the ground planes first: the cubes may be aligned to them (tiles.align_to_ground)
+            ground = fit_ground(*counts, self.config.map.voxel_size, todo, self.tile_vox,
+                                self.config.tiles.occupied_density,
+                                self.config.landing_sites.clutter_height) \
+                if counts is not None else None
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
-                                      todo) if counts is not None else None
+                                      todo, ground) if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
@@ -581,10 +586,6 @@ class Assessor:
                 p_net[batch.valid] = self._predictor(batch.inputs[batch.valid],
                                                      batch_size=self.config.model.batch_size,
                                                      check_finite=False)
-            ground = fit_ground(*counts, self.config.map.voxel_size, batch.index,
-                                self.tile_vox, self.config.tiles.occupied_density,
-                                self.config.landing_sites.clutter_height) \
-                if batch is not None and counts is not None else None
             p, guard = p_net, None
             if batch is not None and counts is not None and ground is not None \
                     and self.config.guard.enabled:

@@ -161,6 +161,10 @@ class TileConfig:
         0.25, 'Tiles with less of their cube observed are unknown', '', (0.0, 1.0))
     min_returns: int = param(20, 'Tiles with fewer returns in their column are unknown', '',
                              (0, 1_000_000))
+    # The shipped model was trained on cubes cut level; aligning them changes what it reads.
+    align_to_ground: bool = param(
+        False, "Align each tile's cube to its ground plane (columns sheared along the slope); "
+        'use with a model trained so')
 
     def validate(self) -> None:
         _check_fields(self, 'tiles.')

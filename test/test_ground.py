@@ -204,3 +204,35 @@ def test_listed_sites_always_keep_every_limit(seed):
         assert s.clearance >= cfg.min_clearance
         assert s.p_safe >= cfg.min_p_safe
         assert math.isfinite(s.z)
+
+
+def test_cubes_aligned_to_the_ground_plane_lie_level():
+    from landing_zone.config import TileConfig
+    from landing_zone.judging.tiles import tiles_from_counts
+
+    _, pts, org = scan_site(12.0, seed=6)
+    dmap = DensityMap(MapConfig(size_xy=8.0, size_z=4.0, z_below=2.0), parallel=False)
+    dmap.integrate(pts, org)
+    h, p = dmap.counts()
+    tiles = tiles_in_box(dmap.lo, dmap.shape, dmap.tile_vox)
+    g = fit_ground(h, p, dmap.lo, dmap.voxel_size, tiles, dmap.tile_vox)
+    k = inner(tiles)
+    tv, pad = dmap.tile_vox, TileConfig().padding
+
+    def ground_rows(config):
+        # per column of each tile's own (unpadded) cube, the lowest occupied voxel's index
+        b = tiles_from_counts(h, p, dmap.lo, dmap.voxel_size, config, tiles[k], g[k])
+        occ = b.inputs[:, 0, pad:pad + tv, pad:pad + tv, :] > 0.2
+        return np.where(occ.any(axis=-1), occ.argmax(axis=-1), -1)
+
+    level = ground_rows(TileConfig())
+    aligned = ground_rows(TileConfig(align_to_ground=True))
+    # cut level, the ground of a 12 degree tile spans a fifth of a metre of the cube ...
+    rows = np.where(level >= 0, level, np.nan)
+    spread_level = np.nanmax(rows, axis=(1, 2)) - np.nanmin(rows, axis=(1, 2))
+    assert np.nanmin(spread_level) >= 3
+    # ... aligned, it lies in the ground voxel's layer (tv // 2 + padding) give or take one
+    on = aligned[aligned >= 0]
+    assert np.mean(np.abs(on - (tv // 2 + pad)) <= 1) > 0.95
+    # off by default: the cubes the shipped model was trained on
+    assert not TileConfig().align_to_ground

@@ -72,6 +72,11 @@ class TileGround:
     def __len__(self) -> int:
         return int(self.plane_z.shape[0])
 
+    def __getitem__(self, sel: np.ndarray | slice) -> TileGround:
+        """The planes of a subset of the tiles (a mask or an index array)."""
+        return TileGround(self.plane_z[sel], self.grad[sel], self.roughness[sel],
+                          self.clearance[sel], self.overhead[sel], self.columns[sel])
+
     @property
     def slope_deg(self) -> np.ndarray:
         """(T,) float32 slope of each plane [deg]; NaN: no plane."""
