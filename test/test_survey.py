@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -140,3 +141,27 @@ def test_a_bad_survey_file_exits_with_one_line(tmp_path):
     lines = (proc.stdout + proc.stderr).strip().splitlines()
     assert len(lines) == 1 and 'cannot read survey' in lines[0], lines
     assert 'Traceback' not in proc.stderr
+
+
+AUTZEN = Path(__file__).resolve().parent / 'data' / 'autzen_trim.laz'
+
+
+def test_the_real_autzen_sample_replays_at_its_georeferenced_position():
+    # a real airborne survey: one flight line, feet, no trajectory (derived)
+    s = read_survey(AUTZEN)
+    assert s.metres_per_unit == pytest.approx(0.3048)
+    assert len(s.points) == 110_000
+    ground = np.median(s.points[:, 2])
+    v = np.diff(s.traj_xyz[:, :2], axis=0) / np.diff(s.traj_times)[:, None]
+    # a survey aircraft: hundreds of metres up, tens of metres per second
+    assert 300 < s.traj_xyz[0, 2] - ground < 1000
+    assert 30 < np.median(np.hypot(v[:, 0], v[:, 1])) < 100
+    from landing_zone.frontends.replay import replay
+
+    centre = (636_581.0, 849_212.0)  # in the file's feet
+    res = replay(AUTZEN, center=centre, progress=False)
+    a = res.assessment
+    geo = res.survey['origin'][0] + a.centers[:, 0] / 0.3048
+    assert geo.min() < centre[0] < geo.max()
+    # about two returns per square metre: far too sparse for the network, every tile unknown
+    assert len(a) == 400 and not a.known.any() and not a.sites
