@@ -236,3 +236,28 @@ def test_cubes_aligned_to_the_ground_plane_lie_level():
     assert np.mean(np.abs(on - (tv // 2 + pad)) <= 1) > 0.95
     # off by default: the cubes the shipped model was trained on
     assert not TileConfig().align_to_ground
+
+
+def test_the_assessor_lists_no_site_beyond_the_slope_limit_and_says_why(model_file):
+    from landing_zone.assessor import Assessor
+    from landing_zone.config import AssessorConfig, TileConfig
+
+    _, pts, org = scan_site(12.0, seed=7)
+    cfg = AssessorConfig()
+    cfg.map = MapConfig(size_xy=8.0, size_z=4.0, z_below=2.0)
+    cfg.tiles = TileConfig(min_observed_fraction=0.1)
+    cfg.landing_sites = SiteConfig(footprint_radius=1.0, top_k=10, min_p_safe=0.0)
+    with Assessor(cfg, center=(0.0, 0.0), model=model_file) as a:
+        for s in np.unique(org, axis=0):  # one cloud per sensor position
+            mine = np.all(org == s, axis=1)
+            a.integrate(pts[mine], s)
+        r = a.assess()
+        assert r.sites == []  # 12 degrees, the limit 8
+        report = r.to_report()
+        assert report['landing_sites'] == []
+        slope = [e for e in report['rejected_sites'] if 'slope' in e['reasons']]
+        assert slope and all(abs(e['slope_deg'] - 12.0) < 1.5 for e in slope)
+        # the limit raised at run time (as the node's parameter does): sites, all below it
+        a.config.landing_sites.max_slope_deg = 15.0
+        r = a.assess()
+        assert r.sites and all(s.slope_deg <= 15.0 for s in r.sites)
