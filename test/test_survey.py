@@ -165,3 +165,32 @@ def test_the_real_autzen_sample_replays_at_its_georeferenced_position():
     assert geo.min() < centre[0] < geo.max()
     # about two returns per square metre: far too sparse for the network, every tile unknown
     assert len(a) == 400 and not a.known.any() and not a.sites
+
+
+def test_an_sbet_trajectory_is_projected_into_the_files_crs(tmp_path):
+    pyproj = pytest.importorskip('pyproj')
+    xyz, t, angle, _ = flight_line(seconds=0.05, lines_hz=200.0, pulses=50)
+    header = laspy.LasHeader(point_format=3, version='1.4')
+    header.add_crs(pyproj.CRS.from_epsg(32633))  # UTM 33N: E0, N0 lie in it
+    header.offsets = np.floor(xyz.min(axis=0))
+    header.scales = np.array([0.001, 0.001, 0.001])
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.gps_time = t
+    path = tmp_path / 'utm.las'
+    las.write(str(path))
+    # the true track as an SBET: 17 float64 per record, latitude / longitude in radians
+    ts = np.linspace(t.min(), t.max(), 12)
+    east = E0 + SPEED * (ts - 300_000.0)
+    to_geo = pyproj.Transformer.from_crs('EPSG:32633', 'EPSG:4979', always_xy=True)
+    lon, lat, alt = to_geo.transform(east, np.full(12, N0), np.full(12, Z0 + HEIGHT))
+    rec = np.zeros((12, 17))
+    rec[:, 0], rec[:, 1], rec[:, 2], rec[:, 3] = ts, np.radians(lat), np.radians(lon), alt
+    sbet = tmp_path / 'track.sbet'
+    rec.astype('<f8').tofile(sbet)
+    s = read_survey(path, trajectory=sbet)
+    want = np.column_stack([east, np.full(12, N0), np.full(12, Z0 + HEIGHT)])
+    np.testing.assert_allclose(s.traj_xyz + s.origin, want, atol=0.01)
+    (tmp_path / 'short.sbet').write_bytes(b'\0' * 100)
+    with pytest.raises(BagError, match='not an SBET'):
+        read_survey(path, trajectory=tmp_path / 'short.sbet')
