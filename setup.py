@@ -42,6 +42,9 @@ setup(
         'dev': ['pytest>=7', 'hypothesis>=6', 'pytest-timeout>=2', 'flake8>=6', 'mypy>=1.8',
                 'mcap>=1.1'],  # mcap: the tests write an unindexed file with it
         'bench': ['octomap-python>=1.9'],
+        # landing-zone replay FILE.las / FILE.laz (LAZ through the lazrs backend); pyproj
+        # reads the file's CRS (its unit) and projects SBET trajectories
+        'survey': ['laspy[lazrs]>=2.4', 'pyproj>=3.4'],
     },
     zip_safe=True,
     maintainer='landing_zone developers',

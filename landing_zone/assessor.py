@@ -22,7 +22,12 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
    tile area))`` (saturating once the tile holds a few hundred returns per square metre).
-5. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.judging.sites`).
+5. **Ground planes** (:mod:`landing_zone.judging.ground`): per tile the plane fitted to the
+   lower envelope of its ground evidence, its slope, roughness and the free height above it;
+   the tile's reported ground height is the plane's at its centre (the tiler's where a tile
+   has no plane).
+6. **Landing sites** for the vehicle's footprint (:mod:`landing_zone.judging.sites`), within
+   the limits on slope, step and clearance; every candidate left out keeps its reasons.
 
 Thread safety: :meth:`integrate` and :meth:`assess` may run on different threads (the node does
 this). The map is guarded by a lock held only while rays are integrated or counts are read; the
@@ -48,7 +53,8 @@ from numpy.typing import ArrayLike
 
 from landing_zone.config import AssessorConfig
 from landing_zone.errors import InvalidCloudError, ModelError
-from landing_zone.judging.sites import LandingSite, find_sites
+from landing_zone.judging.sites import (Candidates, GroundGrids, LandingSite,
+                                        evaluate_candidates, find_sites)
 
 if TYPE_CHECKING:
     from landing_zone.mapping.density_map import IntegrationStats
@@ -128,7 +134,8 @@ class Assessment:
         shape: tiles of the grid along x and y.
         index: (T, 2) int64 global tile indices.
         centers: (T, 2) float64 tile centres [m].
-        ground_z: (T,) float64 estimated ground height [m]; NaN where none was found.
+        ground_z: (T,) float64 estimated ground height [m] (the ground plane's at the tile
+            centre, else the tiler's); NaN where none was found.
         p_safe: (T,) float32 P(safe); NaN where the tile is not observed enough to judge.
         confidence: (T,) float32 in [0, 1].
         observed_fraction: (T,) float32 observed share of each tile's cube.
@@ -142,6 +149,12 @@ class Assessment:
         guard: (T,) bool the guard capped the tile's P(safe) (:mod:`landing_zone.judging.guard`).
         guard_hits: (T,) int64 returns on the largest solid cluster reaching into the tile.
         guard_height: (T,) float32 top of that cluster above the ground [m]; NaN: none.
+        slope_deg: (T,) float32 slope of the tile's ground plane [deg]; NaN: no plane.
+        roughness: (T,) float32 RMS residual of its ground about the plane [m]; NaN: no plane.
+        clearance: (T,) float32 free height above its ground within the map [m]; NaN: no plane.
+        grad: (T, 2) float64 the ground plane's gradient (dz/dx, dz/dy); NaN: no plane.
+        candidates: every tile-centred footprint with its figures and its reasons to be left
+            out (:class:`~landing_zone.judging.sites.Candidates`).
     """
 
     frame_id: str
@@ -164,6 +177,11 @@ class Assessment:
     guard: np.ndarray | None = None
     guard_hits: np.ndarray | None = None
     guard_height: np.ndarray | None = None
+    slope_deg: np.ndarray | None = None
+    roughness: np.ndarray | None = None
+    clearance: np.ndarray | None = None
+    grad: np.ndarray | None = None
+    candidates: Candidates | None = None
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -200,27 +218,40 @@ class Assessment:
         """The REPORT.json document (docs/INTERFACES.md §3).
 
         Beyond the contract's keys, ``reasons`` lists the tiles whose P(safe) is lower than the
-        network's (``x``, ``y``, ``reason``, ``p_net``: the network's own P(safe)).
+        network's (``x``, ``y``, ``reason``, ``p_net``: the network's own P(safe)), tiles carry
+        ``roughness`` and ``clearance`` beside ``slope_deg``, sites their ``step``,
+        ``clearance`` and ground ``normal``, and ``rejected_sites`` lists every candidate
+        footprint left out with its ``reasons`` (but those whose one reason is ``unknown``).
 
         Args:
             stats: the front end's counters (clouds, points, dropped_points, seconds, ...).
         """
         tiles = []
-        for (x, y), gz, p, c in zip(self.centers.tolist(), self.ground_z.tolist(),
-                                    self.p_safe.tolist(), self.confidence.tolist()):
+        nan = np.full(len(self), np.nan)
+        slope = (self.slope_deg if self.slope_deg is not None else nan).tolist()
+        rough = (self.roughness if self.roughness is not None else nan).tolist()
+        clear = (self.clearance if self.clearance is not None else nan).tolist()
+        for (x, y), gz, p, c, sl, ro, cl in zip(self.centers.tolist(), self.ground_z.tolist(),
+                                                self.p_safe.tolist(),
+                                                self.confidence.tolist(), slope, rough, clear):
             tiles.append({'x': x, 'y': y,
                           'ground_z': None if math.isnan(gz) else round(gz, 4),
                           'p_safe': None if math.isnan(p) else round(p, 6),
-                          'confidence': round(c, 6)})
-        # the tiles' keys are the contract's; why a tile's P(safe) is below the network's goes
-        # beside them, one entry per such tile
+                          'confidence': round(c, 6),
+                          'slope_deg': None if math.isnan(sl) else round(sl, 3),
+                          'roughness': None if math.isnan(ro) else round(ro, 4),
+                          'clearance': None if math.isnan(cl) else round(cl, 3)})
+        # why a tile's P(safe) is below the network's goes beside the tiles, one entry per
+        # such tile
         lowered = [{'x': x, 'y': y, 'reason': why,
                     'p_net': None if self.p_net is None else round(float(self.p_net[k]), 6)}
                    for k, ((x, y), why) in enumerate(zip(self.centers.tolist(), self.reasons()))
                    if why is not None]
+        rejected = (self.candidates.rejected(include_unknown_only=False)
+                    if self.candidates is not None else [])
         return {'frame_id': self.frame_id, 'tile_size': self.tile_size, 'tiles': tiles,
                 'landing_sites': [s.to_dict() for s in self.sites],
-                'stats': dict(stats or {}), 'reasons': lowered}
+                'stats': dict(stats or {}), 'reasons': lowered, 'rejected_sites': rejected}
 
 
 class _TileState:
@@ -238,9 +269,15 @@ class _TileState:
         self.guard = np.zeros(shape, bool)
         self.guard_hits = np.zeros(shape, np.int64)
         self.guard_height = np.full(shape, np.nan, np.float32)
+        self.grad_x = np.full(shape, np.nan, np.float64)
+        self.grad_y = np.full(shape, np.nan, np.float64)
+        self.roughness = np.full(shape, np.nan, np.float32)
+        self.clearance = np.full(shape, np.nan, np.float32)
+        self.overhead = np.full(shape, np.nan, np.float32)
 
     _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns', 'p_net',
-               'guard', 'guard_hits', 'guard_height')
+               'guard', 'guard_hits', 'guard_height', 'grad_x', 'grad_y', 'roughness',
+               'clearance', 'overhead')
 
     def move(self, origin: np.ndarray) -> None:
         """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
@@ -529,13 +566,19 @@ class Assessor:
     def finish_assess(self, job: _Pass) -> Assessment:
         """Judge what :meth:`begin_assess` copied (the tiler's kernel and the network, outside
         the map's lock), store the results and return every tile's state."""
+        from landing_zone.judging.ground import fit_ground
         from landing_zone.judging.guard import guard_p_safe, solid_structure
         from landing_zone.judging.tiles import tiles_from_counts
 
         try:
             todo, counts = job.todo, job.counts
+            # the ground planes first: the cubes may be aligned to them (tiles.align_to_ground)
+            ground = fit_ground(*counts, self.config.map.voxel_size, todo, self.tile_vox,
+                                self.config.tiles.occupied_density,
+                                self.config.landing_sites.clutter_height) \
+                if counts is not None else None
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
-                                      todo) if counts is not None else None
+                                      todo, ground) if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
@@ -544,11 +587,16 @@ class Assessor:
                                                      batch_size=self.config.model.batch_size,
                                                      check_finite=False)
             p, guard = p_net, None
-            if batch is not None and counts is not None and self.config.guard.enabled:
-                # the guard reads the same counts: opaque structure above the ground caps P(safe)
+            if batch is not None and counts is not None and ground is not None \
+                    and self.config.guard.enabled:
+                # the guard reads the same counts: opaque structure above the ground caps
+                # P(safe); above the ground plane where the tile has one (a slope's uphill
+                # side is ground), else above the tiler's ground
+                has = np.isfinite(ground.plane_z)
+                gz = np.where(has, ground.plane_z, batch.ground_z)
                 guard = solid_structure(*counts, self.config.map.voxel_size, batch.index,
-                                        np.where(batch.valid, batch.ground_z, np.nan),
-                                        self.tile_vox, self.config.guard)
+                                        np.where(batch.valid, gz, np.nan), self.tile_vox,
+                                        self.config.guard, grad=ground.grad)
                 p = guard_p_safe(p_net, guard, self.config.guard)
             with self._state_lock:
                 st = self._state
@@ -565,6 +613,16 @@ class Assessor:
                         st.guard[i, j], st.guard_hits[i, j], st.guard_height[i, j] = \
                             False, 0, np.nan
                     st.ground_z[i, j] = batch.ground_z[inside]
+                    if ground is not None:
+                        # the plane's height at the centre, where the tile has a plane
+                        has = np.isfinite(ground.plane_z)
+                        st.ground_z[i, j] = np.where(has, ground.plane_z,
+                                                     batch.ground_z)[inside]
+                        st.grad_x[i, j] = ground.grad[inside, 0]
+                        st.grad_y[i, j] = ground.grad[inside, 1]
+                        st.roughness[i, j] = ground.roughness[inside]
+                        st.clearance[i, j] = ground.clearance[inside]
+                        st.overhead[i, j] = ground.overhead[inside]
                     st.observed_fraction[i, j] = batch.observed_fraction[inside]
                     st.n_returns[i, j] = batch.n_returns[inside]
                     st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
@@ -582,8 +640,18 @@ class Assessor:
         sx, sy = st.shape
         gx, gy = np.meshgrid(np.arange(sx), np.arange(sy), indexing='ij')
         index = np.column_stack([gx.ravel(), gy.ravel()]).astype(np.int64) + st.origin
-        sites = find_sites(st.p_safe, st.confidence, (int(st.origin[0]), int(st.origin[1])),
-                           self.config.landing_sites, self.tile_size, ground_z=st.ground_z)
+        from landing_zone.judging.ground import slope_deg
+
+        origin = (int(st.origin[0]), int(st.origin[1]))
+        grad = np.stack([st.grad_x, st.grad_y], axis=-1)
+        has_plane = np.isfinite(st.grad_x)
+        ground = GroundGrids(plane_z=np.where(has_plane, st.ground_z, np.nan), grad=grad,
+                             clearance=st.clearance, overhead=st.overhead)
+        cand = evaluate_candidates(st.p_safe, st.confidence, origin, self.config.landing_sites,
+                                   self.tile_size, ground)
+        sites = find_sites(st.p_safe, st.confidence, origin, self.config.landing_sites,
+                           self.tile_size, ground_z=st.ground_z, ground=ground,
+                           candidates=cand)
         return Assessment(
             frame_id=self.config.frame_id, tile_size=self.tile_size,
             origin=(int(st.origin[0]), int(st.origin[1])), shape=(int(sx), int(sy)),
@@ -594,7 +662,10 @@ class Assessor:
             n_returns=st.n_returns.ravel().copy(), sites=sites,
             footprint_radius=float(self.config.landing_sites.footprint_radius), stamp=stamp,
             p_net=st.p_net.ravel().copy(), guard=st.guard.ravel().copy(),
-            guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy())
+            guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy(),
+            slope_deg=slope_deg(grad).ravel(), roughness=st.roughness.ravel().copy(),
+            clearance=st.clearance.ravel().copy(), grad=grad.reshape(-1, 2).copy(),
+            candidates=cand)
 
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of the map's counts and the tiles' results, taken under the locks at one

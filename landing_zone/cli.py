@@ -83,10 +83,20 @@ def bench(
                   '--report report.json\n\n'
                   '  landing-zone replay flight.bag --out a.mcap --report r.json '
                   '--points-topic /velodyne_points --pose-topic /pose --png map.png\n\n'
-                  '  landing-zone replay site.mcap --out a.mcap --report r.json --center 10 -4')
+                  '  landing-zone replay site.mcap --out a.mcap --report r.json --center 10 -4'
+                  '\n\nA survey file (.las / .laz) replays too, with its sensor trajectory '
+                  '(--trajectory t,x,y,z CSV or SBET, in the file\'s CRS); without one the '
+                  'sensor origins are derived from per-point GPS time and scan angle, assuming '
+                  'each flight line straight, level, at constant speed and scanned across the '
+                  'track (scan angle from nadir, positive to the side that puts the sensor above '
+                  'its returns). Coordinates are kept '
+                  'in float64 around a local origin the report states (survey.origin); '
+                  '--center is then in the file\'s CRS and units.\n\n'
+                  '  landing-zone replay autzen_trim.laz --out a.mcap --report r.json')
 def replay(
     bag: Annotated[Path, typer.Argument(
-        help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
+        help='ROS 2 bag (.mcap, .db3 or directory), ROS 1 .bag with the clouds and poses, or '
+             'a LAS / LAZ survey.')],
     out: Annotated[Path, typer.Option(help='Output bag of the node\'s topics (.mcap).')],
     report: Annotated[Path, typer.Option(help='REPORT.json with the final tiles and sites.')],
     points_topic: Annotated[str, typer.Option(
@@ -102,6 +112,9 @@ def replay(
         help='ROS 2 parameters file (config/assessor.yaml layout) for the pipeline.')] = None,
     labels: Annotated[Optional[Path], typer.Option(
         help='SITE.labels.json: mark the true obstacles in the PNG.')] = None,
+    trajectory: Annotated[Optional[Path], typer.Option(
+        help='LAS / LAZ only: sensor positions over time, CSV t,x,y,z or SBET; default: '
+             'derived from GPS time and scan angle.')] = None,
 ) -> None:
     from landing_zone.frontends.replay import replay as run_replay
     from landing_zone.config import configs_from_flat
@@ -112,7 +125,8 @@ def replay(
         config, stream_config, _ = configs_from_flat(read_params_file(params))
     result = run_replay(bag, out, report, png, points_topic=points_topic, pose_topic=pose_topic,
                         model=model, center=center, config=config,
-                        stream_config=stream_config, labels=labels)
+                        stream_config=stream_config, labels=labels, trajectory=trajectory,
+                        log=lambda line: print(f'note: {line}'))
     st = result.stats
     a = result.assessment
     judged = int(a.known.sum())
@@ -126,6 +140,12 @@ def replay(
           f'{len(a.sites)} landing site(s)'
           + (f', best at ({a.sites[0].x:.1f}, {a.sites[0].y:.1f}) with P(safe) '
              f'{a.sites[0].p_safe:.2f}' if a.sites else ''))
+    if result.survey is not None:
+        o = result.survey['origin']
+        print(f'survey {result.survey["crs"] or "(no CRS)"}: local origin ({o[0]:.2f}, '
+              f'{o[1]:.2f}, {o[2]:.2f}) in the file\'s units '
+              f'({result.survey["metres_per_unit"]:g} m); trajectory '
+              f'{result.survey["trajectory"]}; unknown tiles {len(a) - judged} of {len(a)}')
     print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
 
 

@@ -161,6 +161,10 @@ class TileConfig:
         0.25, 'Tiles with less of their cube observed are unknown', '', (0.0, 1.0))
     min_returns: int = param(20, 'Tiles with fewer returns in their column are unknown', '',
                              (0, 1_000_000))
+    # The shipped model was trained on cubes cut level; aligning them changes what it reads.
+    align_to_ground: bool = param(
+        False, "Align each tile's cube to its ground plane (columns sheared along the slope); "
+        'use with a model trained so')
 
     def validate(self) -> None:
         _check_fields(self, 'tiles.')
@@ -190,6 +194,19 @@ class SiteConfig:
     min_p_safe: float = param(
         0.5, 'Candidates below this P(all tiles under the footprint safe) are left out', '',
         (0.0, 1.0))
+    # Skids: 5-10 degrees is the usual limit of a helicopter's landing gear.
+    max_slope_deg: float = param(
+        8.0, 'Candidates whose ground under the footprint is steeper are left out', 'deg',
+        (0.0, 90.0))
+    max_step: float = param(
+        0.15, 'Candidates with a larger step between the ground planes of two neighbouring '
+        'tiles under the footprint are left out', 'm', (0.0, 10.0))
+    min_clearance: float = param(
+        1.5, 'Candidates with less free height above the ground over the footprint (within '
+        'the map) are left out', 'm', (0.0, 100.0))
+    clutter_height: float = param(
+        0.5, 'Clearance is measured above this height over the ground (below it, grass and '
+        'obstacles are judged by the network)', 'm', (0.0, 10.0))
 
     def validate(self) -> None:
         _check_fields(self, 'landing_sites.')

@@ -1,13 +1,14 @@
 """``landing-zone demo``: simulate a landing-site flight, assess it with the shipped model.
 
 1. :func:`landing_zone.sim.flight.simulate_flight` writes the default site's flight (20 x 20 m
-   of grass patches and obstacles, a lawnmower pass at 8 m) as ``site.mcap`` and its ground
-   truth as ``site.labels.json``.
+   of grass patches and obstacles, a bank rising at 12 degrees over its last 5 m in x, a
+   lawnmower pass at 8 m) as ``site.mcap`` and its ground truth as ``site.labels.json``.
 2. :func:`landing_zone.frontends.replay.replay` runs the node's pipeline on it with the map fixed
    on the site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
 3. The tile map is printed in colour (green safe, red unsafe, grey unknown; ``XX`` marks the
    tiles an obstacle really overlaps), with the AUC of the per-tile P(safe) against the labels
-   over the tiles that were judged, and the fraction judged.
+   over the tiles that were judged, and the fraction judged; then how many candidate
+   footprints were left out for each reason (the bank's for slope: ``map.png`` hatches them).
 """
 from __future__ import annotations
 
@@ -27,7 +28,11 @@ if TYPE_CHECKING:
     from landing_zone.assessor import Assessment
     from landing_zone.frontends.replay import ReplayResult
 
-__all__ = ['DemoResult', 'tile_map', 'run_demo']
+__all__ = ['DemoResult', 'tile_map', 'run_demo', 'DEMO_BANK']
+
+# Slope of the demo site's bank [deg]: steeper than landing_sites.max_slope_deg's default (8),
+# so its footprints are left out for slope.
+DEMO_BANK = 12.0
 
 
 @dataclass
@@ -95,8 +100,8 @@ def tile_map(assessment: Assessment, labels: dict[str, Any] | None = None) -> Te
 
 def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
              model: str | os.PathLike[str] | None = None,
-             console: Console | None = None, families: tuple[str, ...] = ()
-             ) -> DemoResult:
+             console: Console | None = None, families: tuple[str, ...] = (),
+             bank: float = DEMO_BANK) -> DemoResult:
     """Simulate, replay, print; see the module docstring.
 
     Args:
@@ -106,6 +111,7 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
         console: where to print (default a new rich Console).
         families: obstacle families (:mod:`landing_zone.sim.families`) whose test instances
             join the site's obstacles, one more obstacle each (default: the library's six).
+        bank: slope of the bank over the site's last 5 m in x [deg]; 0: none.
 
     Raises:
         ModelError: no model (none shipped and none given).
@@ -126,7 +132,7 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
 
     t0 = time.perf_counter()
     with console.status('simulating the flight ...'):
-        cfg = FlightConfig(seed=seed)
+        cfg = FlightConfig(seed=seed, bank=bank)
         if families:
             # The library's kinds and then the families, one obstacle each of the families
             # more than the default's six.
@@ -166,6 +172,15 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                       f'safe) {best.p_safe:.2f} (r = {a.footprint_radius:g} m), '
                       f'{len(a.sites)} candidate(s)')
     else:
-        console.print('no landing site: no footprint reaches the minimum P(safe)')
+        console.print('no landing site: no footprint within the limits')
+    if a.candidates is not None:
+        from landing_zone.judging.sites import REASONS
+
+        counts = {why: int(((a.candidates.reasons >> k) & 1).sum())
+                  for k, why in enumerate(REASONS)}
+        console.print('candidate footprints left out, by reason (one may have several): '
+                      + ', '.join(f'{why} {n}' for why, n in counts.items())
+                      + f' of {a.candidates.reasons.size} (map.png hatches slope, step and '
+                      'clearance)')
     console.print(f'wrote {out / "report.json"}, {out / "map.png"}, {out / "assessed.mcap"}')
     return DemoResult(out, res, auc, fraction, n, seconds)

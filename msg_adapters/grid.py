@@ -7,10 +7,13 @@ the same content into its .mcap:
 * :func:`safety_grid`: ``nav_msgs/OccupancyGrid``, one cell per tile, value
   ``round(100 * (1 - p_safe))`` (0 surely safe, 100 surely unsafe), -1 unknown.
 * :func:`safety_cloud`: ``sensor_msgs/PointCloud2``, one point per tile with a ground estimate,
-  at (tile centre x, y, ground z), FLOAT32 fields x, y, z, p_safe (NaN unknown), confidence.
-* :func:`landing_site_poses`: ``geometry_msgs/PoseArray``, best first, at the ground.
+  at (tile centre x, y, ground z), FLOAT32 fields x, y, z, p_safe (NaN unknown), confidence,
+  then slope_deg, roughness and clearance of the tile's ground (NaN without a ground plane).
+* :func:`landing_site_poses`: ``geometry_msgs/PoseArray``, best first, at the ground, each
+  oriented with its z axis along the footprint's ground normal.
 * :func:`markers`: ``visualization_msgs/MarkerArray``: the tiles as a cube list coloured from
-  green (safe) through yellow to red (unsafe), grey unknown; a disc of the footprint per site.
+  green (safe) through yellow to red (unsafe), grey unknown; a disc of the footprint per site;
+  over every candidate left out for a reason other than ``unknown``, that reason as text.
 * :func:`diagnostics`: ``diagnostic_msgs/DiagnosticArray`` of key/value strings.
 
 rosbags message classes need every field; :func:`build` fills the ones a builder leaves out
@@ -40,6 +43,7 @@ __all__ = [
     'safety_cloud',
     'landing_site_poses',
     'markers',
+    'reason_text',
     'diagnostics',
 ]
 
@@ -57,7 +61,10 @@ _NUMPY_OF = {'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'octet': np.u
              'int32': np.int32, 'uint32': np.uint32, 'int64': np.int64, 'uint64': np.uint64,
              'float32': np.float32, 'float64': np.float64}
 _UNKNOWN_RGBA = (0.5, 0.5, 0.5, 0.6)
-_MARKER_CUBE_LIST, _MARKER_CYLINDER, _MARKER_DELETEALL = 6, 3, 3
+_MARKER_CUBE_LIST, _MARKER_CYLINDER, _MARKER_DELETEALL, _MARKER_TEXT = 6, 3, 3, 9
+# Colour of the text over a rejected candidate, per first reason.
+_REASON_RGBA = {'obstacle': (1.0, 0.3, 0.3, 0.9), 'slope': (1.0, 0.6, 0.0, 0.9),
+                'step': (0.8, 0.3, 1.0, 0.9), 'clearance': (0.2, 0.8, 1.0, 0.9)}
 _DIAG_LEVELS = {'OK': 0, 'WARN': 1, 'ERROR': 2, 'STALE': 3}
 
 
@@ -131,10 +138,11 @@ def _point(types: MessageTypes, x: float, y: float, z: float) -> Any:
     return types.build('geometry_msgs/msg/Point', x=float(x), y=float(y), z=float(z))
 
 
-def _pose(types: MessageTypes, x: float, y: float, z: float) -> Any:
+def _pose(types: MessageTypes, x: float, y: float, z: float,
+          q: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)) -> Any:
     return types.build('geometry_msgs/msg/Pose', position=_point(types, x, y, z),
-                       orientation=types.build('geometry_msgs/msg/Quaternion', x=0.0, y=0.0,
-                                               z=0.0, w=1.0))
+                       orientation=types.build('geometry_msgs/msg/Quaternion', x=float(q[0]),
+                                               y=float(q[1]), z=float(q[2]), w=float(q[3])))
 
 
 def _color(types: MessageTypes, rgba: tuple[float, float, float, float]) -> Any:
@@ -183,13 +191,22 @@ def safety_grid(assessment: Assessment, stamp_ns: int,
 
 def safety_cloud(assessment: Assessment, stamp_ns: int,
                  types: MessageTypes | Typestore | str = 'rclpy') -> Any:
-    """One point per tile with a ground estimate: x, y, z, p_safe (NaN unknown), confidence."""
+    """One point per tile with a ground estimate: x, y, z, p_safe (NaN unknown), confidence,
+    slope_deg [deg], roughness [m], clearance [m] (NaN where the tile has no ground plane)."""
     types = as_message_types(types)
     have = np.isfinite(assessment.ground_z)
     xyz = np.column_stack([assessment.centers[have], assessment.ground_z[have]])
+    nan = np.full(len(assessment), np.nan, np.float32)
+
+    def field_of(values: np.ndarray | None) -> np.ndarray:
+        out: np.ndarray = (nan if values is None else values)[have].astype(np.float32)
+        return out
     arr = points_to_structured(xyz, {
         'p_safe': assessment.p_safe[have].astype(np.float32),
-        'confidence': assessment.confidence[have].astype(np.float32)}, dtype=np.float32)
+        'confidence': assessment.confidence[have].astype(np.float32),
+        'slope_deg': field_of(assessment.slope_deg),
+        'roughness': field_of(assessment.roughness),
+        'clearance': field_of(assessment.clearance)}, dtype=np.float32)
     return make_cloud(arr, make_header(stamp_ns, assessment.frame_id, types), types)
 
 
@@ -197,11 +214,15 @@ def landing_site_poses(assessment: Assessment, stamp_ns: int,
                        types: MessageTypes | Typestore | str = 'rclpy') -> Any:
     """The landing-site candidates as a ``geometry_msgs/PoseArray``, best first.
 
-    Each pose is the footprint's centre on the ground (z 0 where the ground is unknown), with
-    the identity orientation (a disc has no heading).
+    Each pose is the footprint's centre on the ground (z 0 where the ground is unknown),
+    oriented so its z axis is the ground normal under the footprint (the shortest rotation
+    from the vertical: a disc has no heading, so no yaw).
     """
+    from landing_zone.judging.sites import normal_quaternion
+
     types = as_message_types(types)
-    poses = [_pose(types, s.x, s.y, 0.0 if math.isnan(s.z) else s.z) for s in assessment.sites]
+    poses = [_pose(types, s.x, s.y, 0.0 if math.isnan(s.z) else s.z,
+                   normal_quaternion(s.normal)) for s in assessment.sites]
     return types.build('geometry_msgs/msg/PoseArray',
                        header=make_header(stamp_ns, assessment.frame_id, types), poses=poses)
 
@@ -222,10 +243,14 @@ def tile_colors(p_safe: np.ndarray) -> np.ndarray:
 
 def markers(assessment: Assessment, stamp_ns: int, footprint_radius: float | None = None,
             types: MessageTypes | Typestore | str = 'rclpy') -> Any:
-    """A ``visualization_msgs/MarkerArray``: clear, the coloured tiles, one disc per site.
+    """A ``visualization_msgs/MarkerArray``: clear, the coloured tiles, one disc per site, the
+    reasons of the rejected candidates.
 
-    The discs have the footprint's radius (default the assessment's ``footprint_radius``).
+    The discs have the footprint's radius (default the assessment's ``footprint_radius``) and
+    lie on the footprint's ground plane. Over each candidate left out for a reason other than
+    ``unknown`` (namespace ``rejected``) a text names its reasons, e.g. ``slope 12.1 deg``.
     """
+    from landing_zone.judging.sites import normal_quaternion
     types = as_message_types(types)
     if footprint_radius is None:
         footprint_radius = assessment.footprint_radius
@@ -249,10 +274,38 @@ def markers(assessment: Assessment, stamp_ns: int, footprint_radius: float | Non
         z = 0.0 if math.isnan(site.z) else site.z
         out.append(build(
             types, 'visualization_msgs/msg/Marker', header=header, ns='landing_sites',
-            id=rank, type=_MARKER_CYLINDER, action=0, pose=_pose(types, site.x, site.y, z + 0.05),
+            id=rank, type=_MARKER_CYLINDER, action=0,
+            pose=_pose(types, site.x, site.y, z + 0.05, normal_quaternion(site.normal)),
             scale=types.build('geometry_msgs/msg/Vector3', x=d, y=d, z=0.1),
             color=_color(types, (0.1, 0.4, 1.0, 0.5 if rank else 0.8))))
+    if assessment.candidates is not None:
+        grid_z = assessment.grid(assessment.ground_z)
+        for n, entry in enumerate(assessment.candidates.rejected(include_unknown_only=False)):
+            k = assessment.lookup(entry['x'], entry['y'])
+            gz = float(grid_z.ravel()[k]) if k is not None else math.nan
+            out.append(build(
+                types, 'visualization_msgs/msg/Marker', header=header, ns='rejected', id=n,
+                type=_MARKER_TEXT, action=0,
+                pose=_pose(types, entry['x'], entry['y'], (0.0 if math.isnan(gz) else gz) + 0.3),
+                scale=types.build('geometry_msgs/msg/Vector3', x=0.0, y=0.0, z=0.25),
+                color=_color(types, _REASON_RGBA.get(entry['reasons'][0], (1.0, 1.0, 1.0, 0.9))),
+                text=reason_text(entry)))
     return types.build('visualization_msgs/msg/MarkerArray', markers=out)
+
+
+def reason_text(entry: dict[str, Any]) -> str:
+    """One line naming a rejected candidate's reasons with their figures (a marker's text)."""
+    parts = []
+    for why in entry['reasons']:
+        if why == 'slope' and entry.get('slope_deg') is not None:
+            parts.append(f"slope {entry['slope_deg']:.1f} deg")
+        elif why == 'step' and entry.get('step') is not None:
+            parts.append(f"step {entry['step']:.2f} m")
+        elif why == 'clearance' and entry.get('clearance') is not None:
+            parts.append(f"clearance {entry['clearance']:.2f} m")
+        else:
+            parts.append(why)
+    return ', '.join(parts)
 
 
 def diagnostics(values: dict[str, str], stamp_ns: int, name: str = 'landing_zone: assessor',

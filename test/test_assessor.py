@@ -187,7 +187,11 @@ def test_report_follows_the_contract(model_file):
     back = json.loads(text)
     assert back['frame_id'] == 'map' and back['tile_size'] == 1.0
     assert len(back['tiles']) == 64
-    assert set(back['tiles'][0]) == {'x', 'y', 'ground_z', 'p_safe', 'confidence'}
+    # the contract's keys (slope_deg among them), and the ground's roughness and clearance
+    assert set(back['tiles'][0]) == {'x', 'y', 'ground_z', 'p_safe', 'confidence', 'slope_deg',
+                                     'roughness', 'clearance'}
+    assert any(t['slope_deg'] is not None for t in back['tiles'])
+    assert all(set(s) >= {'x', 'y', 'p_safe', 'slope_deg'} for s in back['landing_sites'])
     nulls = [t for t in back['tiles'] if t['p_safe'] is None]
     assert len(nulls) == int((~r.known).sum()) > 0
     assert all(t['x'] % 1.0 == 0.5 for t in back['tiles'])

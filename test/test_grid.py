@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from landing_zone.assessor import Assessment
+from landing_zone.config import SiteConfig
+from landing_zone.judging.ground import slope_deg
+from landing_zone.judging.sites import GroundGrids, evaluate_candidates
 from msg_adapters import jazzy_typestore as typestore
 from landing_zone.judging.sites import LandingSite
 from msg_adapters import MessageTypes
@@ -22,13 +26,25 @@ def hand_made() -> Assessment:
     p = np.array([[1.0, np.nan], [0.0, 0.994], [0.5, 0.006]], np.float32)
     gz = np.array([[0.1, np.nan], [0.2, 0.3], [0.4, 0.5]])
     conf = np.array([[0.9, 0.0], [0.8, 0.7], [0.6, 0.5]], np.float32)
-    sites = [LandingSite(x=0.5, y=4.5, z=0.2, p_safe=0.9, confidence=0.8, index=(0, 4)),
+    tilt = np.radians(10.0)
+    sites = [LandingSite(x=0.5, y=4.5, z=0.2, p_safe=0.9, confidence=0.8, index=(0, 4),
+                         slope_deg=10.0, normal=(-np.sin(tilt), 0.0, np.cos(tilt))),
              LandingSite(x=1.5, y=5.5, z=float('nan'), p_safe=0.7, confidence=0.5,
                          index=(1, 5))]
+    # tile (0, 0) (the one at x -0.5) rises 12 degrees towards +x, the others are level
+    grad = np.zeros((3, 2, 2))
+    grad[0, 0, 0] = np.tan(np.radians(12.0))
+    grad[0, 1] = np.nan
+    clearance = np.array([[2.0, np.nan], [2.0, 2.0], [2.0, 2.0]], np.float32)
+    cand = evaluate_candidates(p, conf, origin, SiteConfig(footprint_radius=0.5), 1.0,
+                               GroundGrids(gz, grad, clearance))
     return Assessment(frame_id='map', tile_size=1.0, origin=origin, shape=shape, index=index,
                       centers=(index + 0.5) * 1.0, ground_z=gz.ravel(), p_safe=p.ravel(),
                       confidence=conf.ravel(), observed_fraction=np.full(6, 0.5, np.float32),
-                      n_returns=np.full(6, 100), sites=sites, stamp=STAMP / 1e9)
+                      n_returns=np.full(6, 100), sites=sites, stamp=STAMP / 1e9,
+                      slope_deg=slope_deg(grad).ravel(),
+                      roughness=np.array([0.01, np.nan, 0.02, 0.01, 0.03, 0.01], np.float32),
+                      clearance=clearance.ravel(), grad=grad.reshape(-1, 2), candidates=cand)
 
 
 def both(fn, *args):
@@ -71,7 +87,9 @@ def test_safety_cloud_has_one_point_per_grounded_tile():
     m, mb, c1, c2 = both(g.safety_cloud)
     assert c1 == c2
     arr = cloud_to_structured(m)
-    assert arr.dtype.names == ('x', 'y', 'z', 'p_safe', 'confidence')
+    # the contract's fields, then the ground's
+    assert arr.dtype.names == ('x', 'y', 'z', 'p_safe', 'confidence', 'slope_deg', 'roughness',
+                               'clearance')
     assert all(arr.dtype[n] == np.float32 for n in arr.dtype.names)
     assert len(arr) == 5  # the tile without ground is left out
     a = hand_made()
@@ -80,6 +98,8 @@ def test_safety_cloud_has_one_point_per_grounded_tile():
     np.testing.assert_allclose(arr['z'], a.ground_z[have], rtol=1e-6)
     np.testing.assert_allclose(arr['p_safe'], a.p_safe[have])
     np.testing.assert_allclose(arr['confidence'], a.confidence[have])
+    np.testing.assert_allclose(arr['slope_deg'], [12.0, 0.0, 0.0, 0.0, 0.0], atol=1e-4)
+    np.testing.assert_allclose(arr['clearance'], a.clearance[have])
     np.testing.assert_array_equal(cloud_to_structured(mb), arr)
 
 
@@ -88,15 +108,27 @@ def test_landing_sites_best_first():
     assert c1 == c2
     xyz = [(p.position.x, p.position.y, p.position.z) for p in m.poses]
     assert xyz == [(0.5, 4.5, pytest.approx(0.2)), (1.5, 5.5, 0.0)]
-    assert all(p.orientation.w == 1.0 for p in m.poses)
+    # the first site's pose turns the vertical onto its ground normal; the second is level
+    q = m.poses[0].orientation
+    rot = Rotation.from_quat([q.x, q.y, q.z, q.w])
+    np.testing.assert_allclose(rot.apply([0.0, 0.0, 1.0]), hand_made().sites[0].normal,
+                               atol=1e-9)
+    assert np.degrees(rot.magnitude()) == pytest.approx(10.0)
+    assert m.poses[1].orientation.w == 1.0
 
 
 def test_markers_colour_tiles_and_mark_sites():
     m, _, c1, c2 = both(g.markers, 1.5)
     assert c1 == c2
     kinds = [(mk.ns, mk.type, mk.action) for mk in m.markers]
-    assert kinds == [('', 0, 3), ('tiles', 6, 0), ('landing_sites', 3, 0),
-                     ('landing_sites', 3, 0)]
+    assert kinds[:4] == [('', 0, 3), ('tiles', 6, 0), ('landing_sites', 3, 0),
+                         ('landing_sites', 3, 0)]
+    # the rejected candidates' reasons as text: the steep tile, the two near-certain obstacles
+    # (the unknown one is left out)
+    texts = {(mk.pose.position.x, mk.pose.position.y): mk.text for mk in m.markers[4:]
+             if mk.ns == 'rejected' and mk.type == 9}
+    assert texts == {(-0.5, 4.5): 'slope 12.0 deg', (0.5, 4.5): 'obstacle',
+                     (1.5, 5.5): 'obstacle'}
     tiles = m.markers[1]
     assert len(tiles.points) == len(tiles.colors) == 5
     # p = 1 green, p = 0 red, p = 0.5 yellow (tiles x-major, the one without ground left out)

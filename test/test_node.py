@@ -536,11 +536,16 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
         res = call(setter, SetParameters.Request(parameters=[
             Parameter(name, value=value).to_parameter_msg() for name, value in [
                 ('tiles.min_returns', 40), ('map.voxel_size', 0.1),
-                ('landing_sites.min_p_safe', 1.5), ('assessment_period', 0.5)]]))
+                ('landing_sites.min_p_safe', 1.5), ('assessment_period', 0.5),
+                ('landing_sites.max_slope_deg', 4.0), ('landing_sites.max_slope_deg', 95.0),
+                ('landing_sites.min_clearance', 2.5)]]))
         ok = [(r.successful, r.reason) for r in res.results]
         assert ok[0] == (True, '') and ok[3] == (True, '')
         assert not ok[1][0] and 'read-only' in ok[1][1]
         assert not ok[2][0] and 'range' in ok[2][1]
+        # the landing sites' limits are set at run time, in their ranges
+        assert ok[4] == (True, '') and ok[6] == (True, '')
+        assert not ok[5][0] and 'range' in ok[5][1]
         desc = call(describe, DescribeParameters.Request(
             names=['map.voxel_size', 'tiles.min_returns', 'region_center']))
         d = {x.name: x for x in desc.descriptors}
@@ -552,6 +557,8 @@ def test_parameters_are_described_validated_and_applied(model_file, listener):
     finally:
         log = stop(node)
     assert 'parameters changed: tiles.min_returns=40' in log
+    assert 'parameters changed: landing_sites.max_slope_deg=4.0' in log
+    assert 'parameters changed: landing_sites.min_clearance=2.5' in log
 
 
 def test_params_file_has_the_ros_layout_and_every_default():

@@ -6,6 +6,10 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
 - extraction of all 400 tiles (:func:`extract_tiles`: the map's counts, ground, inputs);
 - the guard beside the network (:func:`~landing_zone.judging.guard.solid_structure`) on the same
   counts, as the assessor runs it; the full-map and strip figures include it;
+- the ground planes (:func:`~landing_zone.judging.ground.fit_ground`: slope, roughness,
+  clearance) on the same counts and the landing-site candidates with their limits and reasons
+  (:func:`~landing_zone.judging.sites.evaluate_candidates` and ``find_sites`` on the whole
+  grid, as every pass runs them); the full-map and strip figures include both;
 - the network on the 400 inputs in fp32 (default layout and channels-last) and, where the CPU
   has native bf16 (AVX-512 BF16 / AMX) or on CUDA, bf16 channels-last: ms per tile in a batch
   and seconds per map (extraction + network);
@@ -28,10 +32,12 @@ from typing import Callable
 import numpy as np
 import torch
 
-from landing_zone.config import GuardConfig, MapConfig, TileConfig
+from landing_zone.config import GuardConfig, MapConfig, SiteConfig, TileConfig
 from landing_zone.mapping.density_map import DensityMap
 from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.ground import fit_ground
 from landing_zone.judging.guard import solid_structure
+from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_sites
 from landing_zone.judging.inference import Predictor, bf16_supported
 from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import (CountBuffers, PatchVoxelizer, extract_tiles,
@@ -127,20 +133,52 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     tv = tile_voxels(dmap.voxel_size, tcfg)
     gcfg = GuardConfig()
 
-    def guard(b) -> None:
-        # the assessor hands the guard the counts it read for the tiler; read them here too
+    def counts(b):
+        # the assessor hands the guard and the ground fit the counts it read for the tiler;
+        # read them here too
         lo = np.concatenate([b.index.min(axis=0) * tv - tcfg.padding, dmap.lo[2:]])
         hi = np.concatenate([(b.index.max(axis=0) + 1) * tv + tcfg.padding, dmap.hi[2:]])
         lo = np.clip(lo, dmap.lo, dmap.hi)
         hi = np.clip(hi, lo, dmap.hi)
         h, p = dmap.counts(lo, hi - lo)
-        solid_structure(h, p, lo, dmap.voxel_size, b.index,
-                        np.where(b.valid, b.ground_z, np.nan), tv, gcfg)
+        return h, p, lo
 
-    guard_med, guard_best = _times(lambda: guard(batch), repeats)
-    results['guard_s'] = guard_med
+    def ground(b, read=None):
+        # the assessor fits on the counts it read for the tiler: ``read`` given, no read here
+        h, p, lo = counts(b) if read is None else read
+        return fit_ground(h, p, lo, dmap.voxel_size, b.index, tv, tcfg.occupied_density)
+
+    def guard(b, g=None) -> None:
+        h, p, lo = counts(b)
+        gz = b.ground_z if g is None else np.where(np.isfinite(g.plane_z), g.plane_z,
+                                                   b.ground_z)
+        solid_structure(h, p, lo, dmap.voxel_size, b.index, np.where(b.valid, gz, np.nan),
+                        tv, gcfg, grad=None if g is None else g.grad)
+
+    scfg = SiteConfig()
+    nxy = tuple(int(v) for v in batch.index.max(axis=0) - batch.index.min(axis=0) + 1)
+    origin = tuple(int(v) for v in batch.index.min(axis=0))
+
+    def sites(g) -> None:
+        # every pass chooses the sites afresh over the whole grid
+        grid = GroundGrids(g.plane_z.reshape(nxy), g.grad.reshape(nxy + (2,)),
+                           g.clearance.reshape(nxy), g.overhead.reshape(nxy))
+        p = np.full(nxy, 0.9)
+        cand = evaluate_candidates(p, p, origin, scfg, tcfg.tile_size, grid)
+        find_sites(p, p, origin, scfg, tcfg.tile_size, ground=grid, candidates=cand)
+
+    grd = ground(batch)
+    read = counts(batch)
+    ground_med, ground_best = _times(lambda: ground(batch, read), repeats)
+    guard_med, guard_best = _times(lambda: guard(batch, grd), repeats)
+    sites_med, sites_best = _times(lambda: sites(grd), repeats)
+    results.update(ground_s=ground_med, guard_s=guard_med, sites_s=sites_med)
+    print(f'ground planes of the {n} tiles (slope, roughness, clearance; on the counts the '
+          f'tiler read): {ground_med * 1e3:.1f} ms ({ground_best * 1e3:.1f})')
     print(f'guard on the {n} tiles (its own read of the counts included): '
           f'{guard_med * 1e3:.1f} ms ({guard_best * 1e3:.1f})')
+    print(f'landing-site candidates, limits and reasons over the {nxy[0]} x {nxy[1]} grid: '
+          f'{sites_med * 1e3:.1f} ms ({sites_best * 1e3:.1f})')
 
     nets = {}
     for spec in (DEFAULT_SPEC, PAPER_SPEC):
@@ -150,7 +188,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         nets[spec] = net
         rows = _network_rows(net, batch.inputs, repeats, device)
         best_row = min(rows, key=lambda r: r[1])
-        full = ext_med + guard_med + best_row[1]
+        full = ext_med + ground_med + guard_med + sites_med + best_row[1]
         results[spec] = {
             'label': label, 'mmac_per_tile': net.flops() / 1e6,
             'network_s': {name: med for name, med, _ in rows},
@@ -161,7 +199,8 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         for name, med, best in rows:
             print(f'  {name:<28} {med:>14.3f} {best:>8.3f} {med / n * 1e3:>10.2f}')
         verdict = ('met' if full <= TARGET_MAP_S else 'NOT met')
-        print(f'  full map (extraction + guard + {best_row[0]}): {full:.2f} s; target <= '
+        print(f'  full map (extraction + ground + guard + sites + {best_row[0]}): {full:.2f} s; '
+              f'budget 0.5 s; target <= '
               f'{TARGET_MAP_S:.0f} s {verdict}; aim {AIM_MAP_S} s; ms per tile '
               f'{best_row[1] / n * 1e3:.2f} (target <= {TARGET_MS_PER_TILE:.0f})')
 
@@ -187,8 +226,10 @@ def run(batches: int = 30, seed: int = 0) -> dict:
 
         def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl) -> None:
             sub = extract_tiles(dmap, tcfg, wide, buffers=buffers)
-            guard(sub)
+            g = ground(sub)
+            guard(sub, g)
             predictor(sub.inputs, 256, prec, channels_last=cl)
+            sites(grd)  # the grid's candidates are chosen afresh
 
         med, best = _times(update, repeats)
         predictor.close()

@@ -248,8 +248,10 @@ class AssessorNode(Node):
         self.stream.poses_buffer.tolerance_ns = int(round(stream_config.pose_tolerance * NS))
         self.pipeline.config.idle_flush = float(rest['idle_flush'])
         self.settings.update(rest)
-        if any(p.name.startswith(('tiles.', 'guard.')) for p in params):
+        if any(p.name.startswith(('tiles.', 'guard.')) or p.name == 'landing_sites.clutter_height'
+               for p in params):
             a.invalidate()  # every tile is judged again under the new thresholds
+        # the other limits of landing_sites apply at the next pass (sites are chosen afresh)
         self.get_logger().info('parameters changed: ' + ', '.join(
             f'{p.name}={p.value}' for p in params))
 

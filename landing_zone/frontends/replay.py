@@ -9,6 +9,10 @@ have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/
 REPORT.json (docs/INTERFACES.md §3) and, optionally, a PNG of the safety map over a top view
 of the returns.
 
+A survey file (LAS / LAZ, :mod:`landing_zone.io.survey`) replays the same way: its returns and
+sensor trajectory become the same cloud and pose messages, in a local metric frame whose
+origin the report states (``survey``).
+
 Everything is deterministic except the wall-time figures (``stats.seconds`` and the rates and
 latencies in ``/diagnostics``).
 """
@@ -18,7 +22,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -75,6 +79,7 @@ class ReplayResult:
     assessments: int
     top_view: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     timings: dict[str, float] = field(default_factory=dict)
+    survey: dict[str, Any] | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -127,7 +132,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
            center: Sequence[float] | None = None,
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
            progress: bool = True, labels: str | os.PathLike[str] | None = None,
-           overlap: bool = True) -> ReplayResult:
+           overlap: bool = True, trajectory: str | os.PathLike[str] | None = None,
+           log: Callable[[str], None] | None = None) -> ReplayResult:
     """Assess a recorded flight as the node would, writing its outputs.
 
     Args:
@@ -145,6 +151,10 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         labels: SITE.labels.json; when given, the PNG marks the true obstacles.
         overlap: judge each pass on a worker thread while the next clouds are integrated
             (the same passes and outputs; False runs them in turn, for comparison).
+        trajectory: for a LAS / LAZ ``bag``: the sensor trajectory (CSV ``t,x,y,z`` or SBET);
+            None derives it from GPS time and scan angle. ``center`` is then in the file's
+            CRS and units.
+        log: called with each line worth telling the user (a survey's assumptions).
 
     Returns:
         A :class:`ReplayResult`.
@@ -158,13 +168,22 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
 
     from landing_zone.assessor import Assessor
     from landing_zone.io.bags import BagWriter, read_messages, require_topics
+    from landing_zone.io.survey import is_survey, read_survey
     from landing_zone.frontends.stream import Stream
 
     t_start = time.perf_counter()
     bag = Path(bag)
-    require_topics(bag, points_topic, pose_topic)
+    survey = None
+    if is_survey(bag):
+        survey = read_survey(bag, trajectory, log=log)
+    else:
+        require_topics(bag, points_topic, pose_topic)
     if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
         raise ConfigError(f'center must be two finite numbers, got {center!r}')
+    if survey is not None and center is not None:
+        # the file's CRS and units -> the local metric frame
+        center = tuple(float(v) for v in (np.asarray(center, np.float64) - survey.origin[:2])
+                       * survey.metres_per_unit)
     assessor = Assessor(config, center=center, model=model)
     stream = Stream(assessor, stream_config)
     kept: list[np.ndarray] = []
@@ -183,7 +202,9 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     passes = _Passes(stream, overlap)
     try:
         outputs = _Outputs(writer)
-        bar = tqdm(read_messages(bag, [points_topic, pose_topic]), unit=' msg',
+        source = (survey.messages(points_topic, pose_topic, assessor.config.frame_id)
+                  if survey is not None else read_messages(bag, [points_topic, pose_topic]))
+        bar = tqdm(source, unit=' msg',
                    desc=f'replay {bag.name}', disable=None if progress else True,
                    mininterval=0.5, leave=False)
         for m in bar:
@@ -228,7 +249,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     if len(top) > TOP_VIEW_MAX:
         top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
     res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
-                       seconds=0.0, assessments=passes.count, top_view=top, timings=timings)
+                       seconds=0.0, assessments=passes.count, top_view=top, timings=timings,
+                       survey=survey.describe() if survey is not None else None)
     t_report = time.perf_counter()
     if report is not None:
         doc = result.to_report(stats)
@@ -236,6 +258,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
                          for k, v in assessor.config.to_flat().items()}
         doc['config']['region_center'] = list(assessor.config.center or [])
+        if res.survey is not None:
+            doc['survey'] = res.survey
         _write_json(Path(report), doc)
     if png is not None:
         render_png(result, top, png, labels=labels)
@@ -338,6 +362,7 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
     for i, j in zip(*np.nonzero(unknown)):
         ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
                                edgecolor='0.6', linewidth=0))
+    handles = _draw_reasons(ax, assessment)
     if labels is not None:
         from landing_zone.io.labels import obstacle_footprints, read_labels
 
@@ -349,6 +374,9 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
                             linewidth=2.0 if rank == 1 else 1.0))
         ax.annotate(str(rank), (site.x, site.y), color='tab:blue', ha='center', va='center',
                     fontsize=9, weight='bold')
+    if handles:
+        ax.legend(handles=handles, loc='upper left', fontsize=7, framealpha=0.8,
+                  title='footprint centred here rejected for', title_fontsize=7)
     ax.set_xlim(extent[0], extent[1])
     ax.set_ylim(extent[2], extent[3])
     ax.set_aspect('equal')
@@ -365,6 +393,36 @@ def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.Path
         raise BagError(f'cannot write {path}: {err.strerror}') from err
     finally:
         plt.close(fig)
+
+
+# How the PNG marks a candidate left out for a limit: hatch and colour per reason.
+_REASON_HATCH = {'slope': ('\\\\', 'darkorange'), 'step': ('xx', 'purple'),
+                 'clearance': ('..', 'deepskyblue')}
+
+
+def _draw_reasons(ax: Any, assessment: Assessment) -> list[Any]:
+    """Hatch the tiles whose centred footprint is left out for slope, step or clearance;
+    return the legend's handles (one per reason drawn)."""
+    from matplotlib.patches import Patch, Rectangle
+
+    from landing_zone.judging.sites import REASONS
+
+    cand = assessment.candidates
+    if cand is None:
+        return []
+    ts = assessment.tile_size
+    handles = []
+    for why, (hatch, color) in _REASON_HATCH.items():
+        bit = 1 << REASONS.index(why)
+        cells = np.argwhere(cand.reasons & bit)
+        for i, j in cells:
+            x, y = cand.center(int(i), int(j))
+            ax.add_patch(Rectangle((x - ts / 2, y - ts / 2), ts, ts, fill=False, hatch=hatch,
+                                   edgecolor=color, linewidth=0))
+        if len(cells):
+            handles.append(Patch(facecolor='none', edgecolor=color, hatch=hatch,
+                                 label=f'{why} ({len(cells)})'))
+    return handles
 
 
 def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],

@@ -13,7 +13,9 @@ with returns labelled by what they hit; ``scripts/guard_eval.py`` measures the g
 For every tile, on the same hit / pass counts the tiler reads:
 
 1. **Solid voxels** stand between ``min_height`` and ``max_height`` above the tile's ground
-   estimate (the voxel's lower face above the centre of the ground voxel), hold at least
+   estimate (the voxel's lower face above the centre of the ground voxel; on a tile with a
+   ground plane, :mod:`landing_zone.judging.ground`, the band follows the plane from column
+   to column, so the uphill side of a slope is ground, not structure), hold at least
    ``min_hits`` returns, end at least ``min_hit_ratio`` of the rays reaching them
    (``hits / (hits + passes)``) and cast a shadow: of the rays ending in the voxel or crossing
    the least crossed of its neighbours beneath and beside it, at most ``max_pass_behind``
@@ -75,13 +77,15 @@ class GuardResult:
 
 @nb.njit(cache=True, parallel=True)
 def _guard_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, ground_k, tv, margin, k_lo, k_hi, min_hits, ratio, shadow,
-        out_hits, out_vox, out_top):
+        hits, passes, lo, tiles, ground_k, grad, tv, margin, k_lo, k_hi, min_hits, ratio,
+        shadow, out_hits, out_vox, out_top):
     """Largest solid cluster reaching into each tile's column (see the module docstring).
 
     ``ground_k[t]`` is the tile's ground voxel in box z coordinates (``_NO_GROUND``: none);
-    solid voxels are those ``k_lo .. k_hi`` voxels above it. Outputs per tile: the cluster's
-    returns, voxels and top (voxels above the ground voxel; -1 without a cluster).
+    solid voxels are those ``k_lo .. k_hi`` voxels above it, the band sheared column by column
+    along the ground's gradient ``grad[t]`` (dz/dx, dz/dy; zero: level), so cluster
+    coordinates are heights above the ground plane. Outputs per tile: the cluster's returns,
+    voxels and top (voxels above the ground; -1 without a cluster).
     """
     nx, ny, nz = hits.shape
     rx = tv + 2 * margin
@@ -105,6 +109,13 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
         x0 = tiles[t, 0] * tv - lo[0] - margin
         y0 = tiles[t, 1] * tv - lo[1] - margin
         z0 = ground_k[t] + k_lo
+        # the band's shift per column [voxels]: the ground plane's height there over its
+        # height at the tile's centre
+        shift = np.empty((rx, rx), np.int64)
+        centre = margin + 0.5 * tv - 0.5
+        for i in range(rx):
+            for j in range(rx):
+                shift[i, j] = int(np.round((i - centre) * grad[t, 0] + (j - centre) * grad[t, 1]))
         # label: 0 not solid, -1 solid and not yet visited, c > 0 the cluster's number
         label = np.zeros((rx, rx, rz), np.int32)
         any_solid = False
@@ -117,7 +128,7 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
                 if yj < 0 or yj >= ny:
                     continue
                 for k in range(rz):
-                    zk = z0 + k
+                    zk = z0 + shift[i, j] + k
                     if zk < 0 or zk >= nz:
                         continue
                     h = hits[xi, yj, zk]
@@ -165,7 +176,7 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
                         a = stack[top, 0]
                         b = stack[top, 1]
                         c = stack[top, 2]
-                        c_hits += hits[x0 + a, y0 + b, z0 + c]
+                        c_hits += hits[x0 + a, y0 + b, z0 + shift[a, b] + c]
                         c_vox += 1
                         if c > c_top:
                             c_top = c
@@ -190,7 +201,7 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
 
 def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_size: float,
                     tiles: np.ndarray, ground_z: np.ndarray, tile_vox: int,
-                    config: GuardConfig) -> GuardResult:
+                    config: GuardConfig, grad: np.ndarray | None = None) -> GuardResult:
     """Opaque structure standing above each tile's ground (see the module docstring).
 
     Args:
@@ -205,6 +216,8 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
             fires.
         tile_vox: voxels per tile side.
         config: the guard's thresholds.
+        grad: (T, 2) the tiles' ground gradients (dz/dx, dz/dy), with ``ground_z`` the
+            plane's height at the tile centre; None or NaN: level ground.
 
     Returns:
         A :class:`GuardResult` of the T tiles, in their order.
@@ -225,9 +238,11 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
     out_hits = np.zeros(n, np.int64)
     out_vox = np.zeros(n, np.int64)
     out_top = np.full(n, -1, np.int64)
+    g = np.zeros((n, 2)) if grad is None else np.asarray(grad, np.float64).reshape(n, 2)
+    g = np.ascontiguousarray(np.where(np.isfinite(g), g, 0.0))
     if n:
         _guard_kernel(np.ascontiguousarray(hits, np.uint32),
-                      np.ascontiguousarray(passes, np.uint32), lo_arr, idx, ground_k,
+                      np.ascontiguousarray(passes, np.uint32), lo_arr, idx, ground_k, g,
                       int(tile_vox), margin, k_lo, k_hi, int(config.min_hits),
                       float(config.min_hit_ratio), float(config.max_pass_behind), out_hits,
                       out_vox, out_top)

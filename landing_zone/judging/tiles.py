@@ -38,6 +38,7 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError
 
 if TYPE_CHECKING:
+    from landing_zone.judging.ground import TileGround
     from landing_zone.mapping.density_map import DensityMap
 
 __all__ = [
@@ -144,11 +145,14 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 # --- the compiled kernel -----------------------------------------------------------------------
 
 def _tile_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, tv, pad, quantile, occupied, out, ground_k, nobs, nret):
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, out, ground_k, nobs, nret):
     """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
 
     ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
-    has no occupied voxel (its input is then all zeros).
+    has no occupied voxel (its input is then all zeros). Where ``plane[t]`` is finite (height of
+    the ground plane at the tile centre in box voxels, gradient x, gradient y), the cube is
+    aligned to it: the ground voxel is the plane's at the centre and every column of the cube
+    is shifted by the plane's rise there, in whole voxels (a shear).
     """
     nx, ny, nz = hits.shape
     side = tv + 2 * pad
@@ -186,11 +190,12 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
             continue
         mins = np.sort(colmin[:n])
         kq = mins[int(math.floor(quantile * (n - 1)))]
+        aligned = math.isfinite(plane[t, 0])
+        if aligned:
+            kq = int(math.floor(plane[t, 0]))
         ground_k[t] = kq
-        z0 = kq - half - pad
-        # the input's z range that lies inside the box; the rest reads as unobserved
-        c0 = min(max(-z0, 0), side)
-        c1 = max(min(nz - z0, side), c0)
+        z0t = kq - half - pad
+        centre = pad + 0.5 * tv - 0.5
         seen = 0
         for a in range(side):
             xi = x0 - pad + a
@@ -200,6 +205,12 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                 if xi < 0 or xi >= nx or yj < 0 or yj >= ny:
                     row[:] = 0.0
                     continue
+                z0 = z0t
+                if aligned:
+                    z0 += int(np.round((a - centre) * plane[t, 1] + (b - centre) * plane[t, 2]))
+                # the input's z range that lies inside the box; the rest reads as unobserved
+                c0 = min(max(-z0, 0), side)
+                c1 = max(min(nz - z0, side), c0)
                 row[:c0] = 0.0
                 row[c1:] = 0.0
                 # branch-free so the compiler vectorizes it
@@ -233,7 +244,8 @@ def _as_tiles(tiles: ArrayLike) -> np.ndarray:
 
 def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
                       voxel_size: float, config: TileConfig | None = None,
-                      tiles: np.ndarray | None = None) -> TileBatch:
+                      tiles: np.ndarray | None = None,
+                      ground: TileGround | None = None) -> TileBatch:
     """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
 
     Args:
@@ -245,6 +257,9 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
         config: tiling parameters; default :class:`TileConfig()`.
         tiles: (T, 2) global tile indices to extract; default every tile whose footprint lies
             wholly inside the box. Voxels outside the box read as unobserved.
+        ground: the tiles' ground planes (:func:`~landing_zone.judging.ground.fit_ground`);
+            with ``config.align_to_ground`` the cube of a tile with a plane is aligned to it
+            (ground voxel the plane's at the centre, columns sheared along its rise).
 
     Returns:
         A :class:`TileBatch` of the tiles in the order given (x then y by default).
@@ -272,12 +287,18 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
     ground_k = np.empty(n, np.int64)
     nobs = np.empty(n, np.int64)
     nret = np.empty(n, np.int64)
+    plane = np.full((n, 3), np.nan)
+    if cfg.align_to_ground and ground is not None and n:
+        # box voxel units: the plane's centre height, and its rise per voxel column
+        plane[:, 0] = ground.plane_z / voxel_size - lo_arr[2]
+        plane[:, 1:] = ground.grad
+        plane[~np.all(np.isfinite(plane), axis=1)] = np.nan
     if n:
         # Counts are non-negative; uint32 keeps the kernel to one compiled signature.
         kernel = _tile_kernel_serial if n <= _SERIAL_TILES else _tile_kernel_parallel
         kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
                lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
-               float(cfg.occupied_density), inputs, ground_k, nobs, nret)
+               float(cfg.occupied_density), plane, inputs, ground_k, nobs, nret)
     has_ground = ground_k > -(2 ** 62)
     gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
     ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)

@@ -127,6 +127,10 @@ class FlightConfig:
     families: tuple[str, ...] = ()
     slope: float = 0.0  # the site lies on a plane this steep [deg] ...
     slope_azimuth: float = 0.0  # ... rising towards this direction [rad]
+    # a bank: from x = bank_from on, the ground rises towards +x at this slope [deg] (the
+    # demo's area too steep to land on; 0: none)
+    bank: float = 0.0
+    bank_from: float = 5.0
     # a vegetation family of the datasets (landing_zone.sim.vegetation) instead of the preset's
     # blades: its parameters drawn from the seed, thinned by the site's patches
     vegetation_family: str | None = None
@@ -165,6 +169,8 @@ class FlightConfig:
         parse_families(self.families)
         finite('slope', 0.0, 30.0)
         finite('slope_azimuth', -10.0, 10.0)
+        finite('bank', 0.0, 30.0)
+        finite('bank_from', -200.0, 200.0)
         if self.vegetation_family is not None and \
                 self.vegetation_family not in VEGETATION_FAMILIES:
             raise SimulationError(f'unknown vegetation family {self.vegetation_family!r}; '
@@ -342,6 +348,8 @@ def build_site(config: FlightConfig, rng: np.random.Generator, threads: int = 0)
                                          config.slope_azimuth)
     else:
         terrain = Terrain(config.terrain, rng, lo - config.margin, hi + config.margin)
+    if config.bank > 0:
+        terrain.add_bank(config.bank, config.bank_from)
     # Patches: one noise field shapes where grass grows and how dense, another its height.
     patches = PerlinNoise(rng, wavelength=7.0, octaves=2)
     tallness = PerlinNoise(rng, wavelength=5.0, octaves=1)
@@ -643,7 +651,9 @@ def simulate_flight(config: FlightConfig, out: str | os.PathLike, overwrite: boo
                        **({'vegetation_family': site.vegetation_params}
                           if site.vegetation_params is not None else {}),
                        **({'slope': config.slope, 'slope_azimuth': config.slope_azimuth}
-                          if config.slope else {})},
+                          if config.slope else {}),
+                       **({'bank': config.bank, 'bank_from': config.bank_from}
+                          if config.bank else {})},
               'bushes': [b.to_json() for b in site.bushes],
               'flight': config.to_json() | {'speed': speed, 'passes': passes.tolist()}}
     write_labels(labels_path, labels)

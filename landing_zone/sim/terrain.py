@@ -151,6 +151,21 @@ class Terrain:
         upper = z00 + fy * (z10 - z00) + fx * (z11 - z10)
         return np.where(fx >= fy, lower, upper)
 
+    def add_bank(self, slope: float, x0: float) -> None:
+        """Raise the ground from ``x = x0`` on, rising towards +x at ``slope`` [deg].
+
+        ``x0`` is moved onto the nearest grid line, so the crease lies on the mesh's edges
+        and :meth:`height` stays exact.
+        """
+        if not (math.isfinite(slope) and 0 <= slope <= 45 and math.isfinite(x0)):
+            raise SimulationError(f'bank slope must lie in [0, 45] degrees and its start be '
+                                  f'finite, got {slope!r} and {x0!r}')
+        s = self.config.spacing
+        x0 = round(x0 / s) * s
+        xs = self.lo[0] + s * np.arange(self.shape[1] + 1)
+        self.heights = self.heights + math.tan(math.radians(slope)) * np.maximum(xs - x0,
+                                                                                 0.0)[None, :]
+
     def mesh(self) -> Mesh:
         """The ground as triangles labelled GROUND."""
         s = self.config.spacing
