@@ -106,6 +106,7 @@ def replay(
     from landing_zone.frontends.replay import replay as run_replay
     from landing_zone.config import configs_from_flat
     from landing_zone.io.params import read_params_file
+    from landing_zone.judging.ood import REASON_OOD
 
     config = stream_config = None
     if params is not None:
@@ -126,6 +127,13 @@ def replay(
           f'{len(a.sites)} landing site(s)'
           + (f', best at ({a.sites[0].x:.1f}, {a.sites[0].y:.1f}) with P(safe) '
              f'{a.sites[0].p_safe:.2f}' if a.sites else ''))
+    if result.ood_reference is None:
+        print('OOD reference: none (the signal is off: no tile is unknown for looking unlike '
+              'the training data)')
+    else:
+        unlike = sum(r is not None and r.startswith(REASON_OOD) for r in a.reasons())
+        print(f'OOD reference {result.ood_reference}: {unlike} tile(s) unknown as unlike the '
+              'training data')
     print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
 
 

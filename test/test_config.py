@@ -24,9 +24,9 @@ def test_the_yaml_file_is_the_one_the_metadata_gives():
 
 
 def test_every_parameter_has_its_facts_and_a_default_inside_its_range():
-    # 28 + the guard section's 9 + the live node's receive_queue, receive_queue_mb,
-    # qos_reliability, snapshot.path and snapshot.period
-    assert len(PARAMETERS) == 42
+    # 28 + the guard section's 9 + the ood section's 2 + the live node's receive_queue,
+    # receive_queue_mb, qos_reliability, snapshot.path and snapshot.period
+    assert len(PARAMETERS) == 44
     for name, (default, p) in PARAMETERS.items():
         assert p.description and not p.description.endswith('.'), name
         if p.range is not None:
