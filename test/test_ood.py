@@ -231,3 +231,50 @@ def test_a_net_in_memory_is_checked_by_its_weights(model_file, tmp_path):
     a, _ = assess(net, path=str(reference_path_for(model)))
     assert a.ood is not None
     a.close()
+
+
+def test_fit_ood_writes_the_same_reference_for_a_seed_and_the_assessor_uses_it(model_file,
+                                                                                tmp_path):
+    import subprocess
+    import sys
+
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.learn.ood_fit import fit_ood
+    from landing_zone.sim.dataset import simulate_dataset
+
+    data = tmp_path / 'data'
+    simulate_dataset('synth1', data, scenes=24, workers=1, seed=0, progress=False, split='train')
+    model = tmp_path / 'net.safetensors'
+    shutil.copy(model_file, model)
+    kw = dict(scenes=20, views=2, k=3, seed=4, progress=False)
+    fit = fit_ood(model, [data], tmp_path / 'one.ood.safetensors', **kw)
+    fit_ood(model, [data], tmp_path / 'two.ood.safetensors', **kw)
+    # same model, data and seed: the same bytes (on this machine)
+    assert (tmp_path / 'one.ood.safetensors').read_bytes() == \
+        (tmp_path / 'two.ood.safetensors').read_bytes()
+    assert (fit.scenes, fit.reference_tiles + fit.held_out_tiles) == (20, 40)
+    ref = load_reference(fit.path, read_metadata(model)['weights_sha256'])
+    assert ref.k == 3 and ref.meta['scenes'] == 20 and ref.meta['held_out_scenes'] == 5
+    other = fit_ood(model, [data], tmp_path / 'three.ood.safetensors', **{**kw, 'seed': 5})
+    assert other.reference.digest != fit.reference.digest  # another draw
+
+    def cli(*args):
+        return subprocess.run([sys.executable, '-m', 'landing_zone', *args],
+                              capture_output=True, text=True, timeout=300)
+
+    out = cli('fit-ood', '--model', str(model), '--data', str(data), '--out',
+              str(reference_path_for(model)), '--scenes', '20', '--views', '2', '--k', '3',
+              '--seed', '4', '--quiet')
+    assert out.returncode == 0, out.stderr
+    assert 'reference tiles' in out.stdout and 'threshold' in out.stdout
+    assert reference_path_for(model).read_bytes() == fit.path.read_bytes()
+    a, _ = assess(model)  # found beside the model
+    assert a.ood_path == reference_path_for(model)
+    a.close()
+    # a bad model file on the command line: one line, exit 2, no traceback
+    bad = tmp_path / 'bad.safetensors'
+    bad.write_bytes(b'junk')
+    out = cli('fit-ood', '--model', str(bad), '--data', str(data), '--out',
+              str(tmp_path / 'x.ood.safetensors'))
+    assert out.returncode == 2 and 'Traceback' not in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and 'bad.safetensors' in out.stderr
