@@ -233,8 +233,8 @@ def test_a_net_in_memory_is_checked_by_its_weights(model_file, tmp_path):
     a.close()
 
 
-def test_fit_ood_writes_the_same_reference_for_a_seed_and_the_assessor_uses_it(model_file,
-                                                                                tmp_path):
+def test_fit_ood_gives_the_same_reference_for_a_seed_and_the_assessor_finds_it(
+        model_file, tmp_path):
     import subprocess
     import sys
 

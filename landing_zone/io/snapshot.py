@@ -14,8 +14,8 @@ plus a string-to-string header; loading it runs no code from the file, unlike pi
 Loading refuses, with one line naming the first difference, a file that is not such a snapshot or
 was made for another frame, voxel size, map extent, tiling or region: its counts would mean
 something else here. A snapshot made with another model or OOD reference keeps its counts; its
-tiles are judged again by this one at the next pass. Writing goes through a temporary file and ``os.replace``, so
-a crash mid-write leaves the previous snapshot whole.
+tiles are judged again by this one at the next pass. Writing goes through a temporary file and
+``os.replace``, so a crash mid-write leaves the previous snapshot whole.
 """
 from __future__ import annotations
 

@@ -88,8 +88,8 @@ def _features(predictor: Predictor, pick: list[tuple[int, Any, int]], views: int
             out.append(predictor.with_features(np.stack(pending), batch_size=batch)[1])
             pending.clear()
 
-    for j, ds, i in tqdm(pick, unit=' scene', disable=None if progress else True, leave=False,
-                      mininterval=0.5, desc='fit-ood'):
+    for j, ds, i in tqdm(pick, unit=' scene', disable=None if progress else True,
+                         leave=False, mininterval=0.5, desc='fit-ood'):
         scene = ds[i]
         # the views' yaws hang on the scene's place in the pooled list: a scene gets the same
         # yaws whichever part (reference or held out) it lands in
