@@ -278,3 +278,14 @@ def test_fit_ood_gives_the_same_reference_for_a_seed_and_the_assessor_finds_it(
               str(tmp_path / 'x.ood.safetensors'))
     assert out.returncode == 2 and 'Traceback' not in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and 'bad.safetensors' in out.stderr
+
+
+def test_the_shipped_model_has_its_reference():
+    from landing_zone.assessor import default_model_path
+    from landing_zone.judging.checkpoint import read_metadata
+
+    model = default_model_path()
+    ref = load_reference(reference_path_for(model), read_metadata(model)['weights_sha256'],
+                         dim=128)
+    assert ref.k == 10 and ref.quantile == 99.5 and 0.0 < ref.threshold < 2.0
+    assert ref.features.nbytes < 2e6
