@@ -289,3 +289,22 @@ def test_the_shipped_model_has_its_reference():
                          dim=128)
     assert ref.k == 10 and ref.quantile == 99.5 and 0.0 < ref.threshold < 2.0
     assert ref.features.nbytes < 2e6
+
+
+def test_a_snapshot_restores_tiles_only_under_the_same_reference(model_file, tmp_path):
+    from landing_zone.io.snapshot import load_snapshot, save_snapshot
+
+    model = tmp_path / 'net.safetensors'
+    shutil.copy(model_file, model)
+    noise = np.random.default_rng(2).uniform(-1, 1, (30, 1, 32, 32, 32)).astype(np.float32)
+    fit_for(model, noise[:20], noise[20:])
+    a, r = assess(model)
+    path = tmp_path / 'map.snapshot'
+    save_snapshot(path, a)
+    b, _ = assess(model, seed=7)  # same reference: the tiles and their OOD ratios come back
+    assert load_snapshot(path, b)['tiles_restored']
+    np.testing.assert_array_equal(b.assess().ood, r.ood)
+    c, _ = assess(model, seed=7, enabled=False)  # judged without it: judged again
+    assert not load_snapshot(path, c)['tiles_restored']
+    for x in (a, b, c):
+        x.close()
