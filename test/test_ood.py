@@ -233,6 +233,7 @@ def test_a_net_in_memory_is_checked_by_its_weights(model_file, tmp_path):
     a.close()
 
 
+@pytest.mark.slow
 def test_fit_ood_gives_the_same_reference_for_a_seed_and_the_assessor_finds_it(
         model_file, tmp_path):
     import subprocess
