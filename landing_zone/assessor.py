@@ -17,11 +17,15 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    :class:`~landing_zone.config.TileConfig`) gets P(safe) from the calibrated network (its
    checkpoint's temperature); any other tile is unknown (NaN), never guessed safe. Beside the
    network the guard (:mod:`landing_zone.judging.guard`) caps P(safe) where opaque structure stands
-   above the tile's ground, whatever its shape.
+   above the tile's ground, whatever its shape; after it, a tile the network calls safe whose
+   features are unlike every training tile's (:mod:`landing_zone.judging.ood`, when the model
+   has a reference) becomes unknown, and every tile's confidence is scaled by how near its
+   features lie to the training tiles'.
 4. **Confidence** in [0, 1] says how much the judgement rests on observation: the product of
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
-   tile area))`` (saturating once the tile holds a few hundred returns per square metre).
+   tile area))`` (saturating once the tile holds a few hundred returns per square metre), times
+   ``min(1, threshold / distance)`` of the OOD signal where there is one.
 5. **Ground planes** (:mod:`landing_zone.judging.ground`): per tile the plane fitted to the
    lower envelope of its ground evidence, its slope, roughness and the free height above it;
    the tile's reported ground height is the plane's at its centre (the tiler's where a tile
@@ -57,6 +61,7 @@ from landing_zone.judging.sites import (Candidates, GroundGrids, LandingSite,
                                         evaluate_candidates, find_sites)
 
 if TYPE_CHECKING:
+    from landing_zone.judging.ood import FeatureReference
     from landing_zone.mapping.density_map import IntegrationStats
 
 __all__ = ['Assessor', 'Assessment', 'default_model_path', 'tile_confidence',
@@ -155,6 +160,9 @@ class Assessment:
         grad: (T, 2) float64 the ground plane's gradient (dz/dx, dz/dy); NaN: no plane.
         candidates: every tile-centred footprint with its figures and its reasons to be left
             out (:class:`~landing_zone.judging.sites.Candidates`).
+        ood: (T,) float32 the tile's feature distance over the OOD threshold (past 1: unlike
+            the training data, :mod:`landing_zone.judging.ood`); NaN where not judged or
+            without a reference.
     """
 
     frame_id: str
@@ -182,6 +190,7 @@ class Assessment:
     clearance: np.ndarray | None = None
     grad: np.ndarray | None = None
     candidates: Candidates | None = None
+    ood: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -207,12 +216,25 @@ class Assessment:
     def reasons(self) -> list[str | None]:
         """Per tile, why its P(safe) is lower than the network's (None: it is the network's)."""
         from landing_zone.judging.guard import REASON_SOLID
+        from landing_zone.judging.ood import REASON_OOD
 
         if self.guard is None or self.guard_hits is None or self.guard_height is None:
             return [None] * len(self)
-        return [f'{REASON_SOLID}: {n} returns up to {h:.2f} m' if g else None
-                for g, n, h in zip(self.guard.tolist(), self.guard_hits.tolist(),
-                                   self.guard_height.tolist())]
+        n = len(self)
+        ood = self.ood if self.ood is not None else np.full(n, np.nan, np.float32)
+        p_net = self.p_net if self.p_net is not None else self.p_safe
+        out: list[str | None] = []
+        for g, hits, h, p, q, r in zip(self.guard.tolist(), self.guard_hits.tolist(),
+                                       self.guard_height.tolist(), self.p_safe.tolist(),
+                                       p_net.tolist(), ood.tolist()):
+            if g:
+                out.append(f'{REASON_SOLID}: {hits} returns up to {h:.2f} m')
+            elif math.isnan(p) and not math.isnan(q):
+                # judged by the network, made unknown after it: only the OOD signal does that
+                out.append(f'{REASON_OOD}: feature distance {r:.2f} x the threshold')
+            else:
+                out.append(None)
+        return out
 
     def to_report(self, stats: dict[str, Any] | None = None) -> dict[str, Any]:
         """The REPORT.json document (docs/INTERFACES.md §3).
@@ -222,6 +244,8 @@ class Assessment:
         ``roughness`` and ``clearance`` beside ``slope_deg``, sites their ``step``,
         ``clearance`` and ground ``normal``, and ``rejected_sites`` lists every candidate
         footprint left out with its ``reasons`` (but those whose one reason is ``unknown``).
+        The reasons cover the guard's caps and the tiles the OOD signal made unknown
+        (``p_safe`` null).
 
         Args:
             stats: the front end's counters (clouds, points, dropped_points, seconds, ...).
@@ -274,10 +298,11 @@ class _TileState:
         self.roughness = np.full(shape, np.nan, np.float32)
         self.clearance = np.full(shape, np.nan, np.float32)
         self.overhead = np.full(shape, np.nan, np.float32)
+        self.ood = np.full(shape, np.nan, np.float32)
 
     _FIELDS = ('p_safe', 'confidence', 'ground_z', 'observed_fraction', 'n_returns', 'p_net',
                'guard', 'guard_hits', 'guard_height', 'grad_x', 'grad_y', 'roughness',
-               'clearance', 'overhead')
+               'clearance', 'overhead', 'ood')
 
     def move(self, origin: np.ndarray) -> None:
         """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
@@ -327,6 +352,8 @@ class Assessor:
         map: the :class:`~landing_zone.mapping.density_map.DensityMap`.
         model: the network; ``model_path`` the file it came from (None if passed in).
         model_metadata: the checkpoint's metadata.
+        ood: the model's OOD reference (:class:`~landing_zone.judging.ood.FeatureReference`),
+            None without one (``ood.enabled`` false, or no file); ``ood_path`` its file.
         stats: the integration counters summed over every cloud.
         clouds: clouds integrated.
     """
@@ -345,7 +372,7 @@ class Assessor:
         Raises:
             ConfigError: an invalid configuration.
             ModelError: the model is missing, corrupt, or expects other inputs than the tiler
-                makes.
+                makes; or the OOD reference named is missing, bad or of another model.
         """
         from landing_zone.mapping.density_map import DensityMap, IntegrationStats
         from landing_zone.judging.tiles import tile_voxels
@@ -374,6 +401,7 @@ class Assessor:
                 f'volumes but tiles.tile_size / map.voxel_size + 2 * tiles.padding gives '
                 f'{side}^3')
         self._check_voxel_size()
+        self.ood, self.ood_path = self._load_ood()
         self._map_lock = threading.Lock()  # the map and the tile window's placement
         self._state_lock = threading.Lock()  # the tile results
         self._assess_lock = threading.Lock()  # one assessment pass at a time
@@ -402,6 +430,24 @@ class Assessor:
             Path(self.config.model.path) if self.config.model.path else default_model_path())
         net, meta = load_model(path, device=self.config.model.device)
         return net, meta, path
+
+    def _load_ood(self) -> tuple[FeatureReference | None, Path | None]:
+        """The OOD reference: ``ood.path``, else the one beside the model file, if there."""
+        from landing_zone.judging.checkpoint import weights_sha256
+        from landing_zone.judging.ood import load_reference, reference_path_for
+
+        cfg = self.config.ood
+        if not cfg.enabled:
+            return None, None
+        if cfg.path:
+            path = Path(cfg.path)
+        elif self.model_path is not None and reference_path_for(self.model_path).is_file():
+            path = reference_path_for(self.model_path)
+        else:
+            return None, None  # this model has no reference: judged without the signal
+        # bound to the weights as loaded (a net passed in memory has no metadata to ask)
+        sha = self.model_metadata.get('weights_sha256') or weights_sha256(self.model)
+        return load_reference(path, sha, dim=self.model.head.in_features), path
 
     def _check_voxel_size(self) -> None:
         meta = self.model_metadata
@@ -580,12 +626,18 @@ class Assessor:
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
                                       todo, ground) if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
+            ood = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile
                 # the tiler writes 2 * density - 1: finite by construction, no check
-                p_net[batch.valid] = self._predictor(batch.inputs[batch.valid],
-                                                     batch_size=self.config.model.batch_size,
-                                                     check_finite=False)
+                x, bs = batch.inputs[batch.valid], self.config.model.batch_size
+                if self.ood is not None:
+                    # the features come from the same forward pass as P(safe)
+                    p_net[batch.valid], feats = self._predictor.with_features(
+                        x, batch_size=bs, check_finite=False)
+                    ood[batch.valid] = self.ood.ratio(feats)
+                else:
+                    p_net[batch.valid] = self._predictor(x, batch_size=bs, check_finite=False)
             p, guard = p_net, None
             if batch is not None and counts is not None and ground is not None \
                     and self.config.guard.enabled:
@@ -598,6 +650,9 @@ class Assessor:
                                         np.where(batch.valid, gz, np.nan), self.tile_vox,
                                         self.config.guard, grad=ground.grad)
                 p = guard_p_safe(p_net, guard, self.config.guard)
+            # after the guard: a "safe" the network gives a tile unlike its training data is
+            # not trusted (NaN ratios, tiles not judged or no reference, compare False)
+            p = np.where((ood > 1.0) & (p >= 0.5), np.float32(np.nan), p).astype(np.float32)
             with self._state_lock:
                 st = self._state
                 if batch is not None:
@@ -625,9 +680,12 @@ class Assessor:
                         st.overhead[i, j] = ground.overhead[inside]
                     st.observed_fraction[i, j] = batch.observed_fraction[inside]
                     st.n_returns[i, j] = batch.n_returns[inside]
-                    st.confidence[i, j] = tile_confidence(batch.observed_fraction[inside],
-                                                          batch.n_returns[inside],
-                                                          self.tile_size)
+                    # past the OOD threshold the judgement rests on extrapolation
+                    near = 1.0 / np.maximum(np.nan_to_num(ood[inside], nan=1.0), 1.0)
+                    st.confidence[i, j] = tile_confidence(
+                        batch.observed_fraction[inside], batch.n_returns[inside],
+                        self.tile_size) * near.astype(np.float32)
+                    st.ood[i, j] = ood[inside]
                 result = self._snapshot(st, job.stamp)
             result.reassessed = int(len(todo))
             result.seconds = time.perf_counter() - job.t0
@@ -665,7 +723,7 @@ class Assessor:
             guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy(),
             slope_deg=slope_deg(grad).ravel(), roughness=st.roughness.ravel().copy(),
             clearance=st.clearance.ravel().copy(), grad=grad.reshape(-1, 2).copy(),
-            candidates=cand)
+            candidates=cand, ood=st.ood.ravel().copy())
 
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of the map's counts and the tiles' results, taken under the locks at one

@@ -119,6 +119,7 @@ def replay(
     from landing_zone.frontends.replay import replay as run_replay
     from landing_zone.config import configs_from_flat
     from landing_zone.io.params import read_params_file
+    from landing_zone.judging.ood import REASON_OOD
 
     config = stream_config = None
     if params is not None:
@@ -146,6 +147,13 @@ def replay(
               f'{o[1]:.2f}, {o[2]:.2f}) in the file\'s units '
               f'({result.survey["metres_per_unit"]:g} m); trajectory '
               f'{result.survey["trajectory"]}; unknown tiles {len(a) - judged} of {len(a)}')
+    if result.ood_reference is None:
+        print('OOD reference: none (the signal is off: no tile is unknown for looking unlike '
+              'the training data)')
+    else:
+        unlike = sum(r is not None and r.startswith(REASON_OOD) for r in a.reasons())
+        print(f'OOD reference {result.ood_reference}: {unlike} tile(s) unknown as unlike the '
+              'training data')
     print(f'wrote {out}, {report}' + (f', {png}' if png is not None else ''))
 
 
@@ -445,6 +453,47 @@ def calibrate(
           f'obstacle scenes at P(safe) >= 0.5 '
           f'{100 * s["out_of_family_unsafe_ge_0.5"]["previous"]:.1f}% -> '
           f'{100 * s["out_of_family_unsafe_ge_0.5"]["fitted"]:.1f}%')
+
+
+# --- fit-ood ----------------------------------------------------------------------------------
+
+@app.command(name='fit-ood',
+             help='Fit the out-of-distribution reference of a model: the penultimate features '
+                  'of tiles from the train split of its data, and the threshold (a quantile of '
+                  'held-out scenes\' k-NN distance) past which a tile the model calls safe '
+                  'becomes unknown. Write it as NAME.ood.safetensors beside NAME.safetensors '
+                  'for the assessor to find it. Same seed, same bytes.\n\n'
+                  'Example:\n\n'
+                  '  landing-zone simulate --dataset synth2 --split train --scenes 1200 '
+                  '--seed 1 --out data/s2ref\n\n'
+                  '  landing-zone fit-ood --model models/landing_zone.safetensors --data '
+                  'data/s2ref --out models/landing_zone.ood.safetensors --scenes 1200')
+def fit_ood(
+    model: Annotated[Path, typer.Option(help='Model file (.safetensors).')],
+    data: Annotated[list[Path], typer.Option(
+        help='Dataset directory; repeat for more (their train splits are pooled).')],
+    out: Annotated[Path, typer.Option(help='Reference file (NAME.ood.safetensors).')],
+    scenes: Annotated[int, typer.Option(
+        help='Scenes to read, reference and held-out together.')] = 1000,
+    held_out: Annotated[float, typer.Option(
+        help='Share of the scenes that set the threshold, not in the reference.')] = 0.25,
+    views: Annotated[int, typer.Option(help='Voxelizations of each scene at seeded yaws.')] = 3,
+    seed: Annotated[int, typer.Option(help='Seed of the scene draw and the yaws.')] = 0,
+    k: Annotated[int, typer.Option(help='The neighbour whose distance is the score.')] = 10,
+    quantile: Annotated[float, typer.Option(
+        help='Quantile [%] of the held-out distances taken as the threshold.')] = 99.5,
+    quiet: Annotated[bool, typer.Option(help='No progress bar.')] = False,
+) -> None:
+    from landing_zone.learn.ood_fit import fit_ood as run_fit
+
+    res = run_fit(model, data, out, scenes=scenes, held_out=held_out, views=views, seed=seed,
+                  k=k, quantile=quantile, progress=not quiet)
+    ref = res.reference
+    print(f'wrote {res.path}: {res.reference_tiles} reference tiles of {ref.dim} features '
+          f'({res.path.stat().st_size / 1e6:.1f} MB), k {ref.k}, threshold {ref.threshold:.4f} '
+          f'(the {ref.quantile:g}th percentile of {res.held_out_tiles} held-out tiles; '
+          f'{res.held_out_past:.1%} of them past it), from {res.scenes} scenes in '
+          f'{res.seconds:.0f} s')
 
 
 # --- simulate ---------------------------------------------------------------------------------

@@ -27,6 +27,7 @@ __all__ = [
     'ModelConfig',
     'SiteConfig',
     'GuardConfig',
+    'OODConfig',
     'AssessorConfig',
     'StreamConfig',
     'NodeConfig',
@@ -39,7 +40,7 @@ __all__ = [
     'params_yaml',
 ]
 
-SECTIONS = ('map', 'tiles', 'model', 'landing_sites', 'guard')
+SECTIONS = ('map', 'tiles', 'model', 'landing_sites', 'guard', 'ood')
 
 
 @dataclass(frozen=True)
@@ -245,6 +246,23 @@ class GuardConfig:
 
 
 @dataclass
+class OODConfig:
+    """The out-of-distribution signal after the guard (judging.ood)."""
+
+    # Its threshold and k live in the reference file, fitted with the model's data
+    # (landing-zone fit-ood): they belong to the model, not to the deployment.
+    enabled: bool = param(True, 'Tiles judged safe but unlike the training data become unknown',
+                          read_only=True)
+    path: str = param('', 'OOD reference file; empty: NAME.ood.safetensors beside the model',
+                      read_only=True)
+
+    def validate(self) -> None:
+        _check_fields(self, 'ood.')
+        if self.path and not self.path.endswith('.safetensors'):
+            raise ConfigError(f'ood.path must be a .safetensors file, got {self.path!r}')
+
+
+@dataclass
 class AssessorConfig:
     """The whole pipeline; the defaults are those of the node (docs/INTERFACES.md §1)."""
 
@@ -258,6 +276,7 @@ class AssessorConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     landing_sites: SiteConfig = field(default_factory=SiteConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
+    ood: OODConfig = field(default_factory=OODConfig)
 
     def validate(self) -> None:
         if not self.frame_id:
@@ -270,6 +289,7 @@ class AssessorConfig:
         self.model.validate()
         self.landing_sites.validate()
         self.guard.validate()
+        self.ood.validate()
         ratio = self.map.size_xy / self.tiles.tile_size
         if ratio < 1 or abs(ratio - round(ratio)) > 1e-6:
             raise ConfigError(f'map.size_xy ({self.map.size_xy}) must be a whole multiple of '

@@ -17,11 +17,14 @@ guard beside it (:mod:`landing_zone.judging.guard`), on what it never saw:
 
 Every flight is replayed through the same pipeline as the node
 (:func:`landing_zone.frontends.replay.replay`, map fixed on the site), which keeps the
-network's own P(safe) (``p_net``) beside the guarded one (``p_safe``), so both are scored on
-the same tiles. Per condition (tiles pooled over its seeds): per-tile AUC, the shares of
-obstacle tiles at P(safe) >= 0.5 and >= 0.9, false alarms (share of safe tiles at P(safe) <
-0.5), unknown tiles; and for the guard itself, the tiles it capped and how many of them were
-safe::
+network's own P(safe) (``p_net``) beside the final one (``p_safe``: the guard and, when the
+model has its reference, the OOD signal applied), so all are scored on the same tiles: the
+network alone, with the guard (its cap applied to ``p_net``), and with the guard and the OOD
+signal (tiles judged safe that look unlike the training data become unknown,
+:mod:`landing_zone.judging.ood`). Per condition (tiles pooled over its seeds): per-tile AUC
+over the judged tiles, the shares of obstacle tiles at P(safe) >= 0.5 and >= 0.9, false alarms
+(share of safe tiles at P(safe) < 0.5), unknown tiles; and for the guard itself, the tiles it
+capped and how many of them were safe::
 
     python scripts/guard_eval.py runs/guard_eval --seeds 3 --json runs/guard_eval.json
 
@@ -214,8 +217,12 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False) -> dict
         insert_obstacles(bag, inserted, obstacles=shapes, seed=seed, overwrite=True)
         bag.unlink()
         bag, labels = inserted, inserted.with_suffix('.labels.json')
+    from landing_zone.config import GuardConfig
+
     res = replay(bag, center=(0.0, 0.0), progress=False)
     a = res.assessment
+    cap = GuardConfig().max_p_safe
+    ood = a.ood if a.ood is not None else np.full(len(a), np.nan)
     doc = json.loads(labels.read_text())
     truth = {(round(t['x'], 3), round(t['y'], 3)): bool(t['safe']) for t in doc['tiles']}
     kinds, centres = _obstacle_tiles(doc['obstacles'])
@@ -224,11 +231,13 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False) -> dict
         key = (round(x, 3), round(y, 3))
         if key not in truth:
             continue
-        tiles.append({'safe': truth[key], 'p_net': _num(a.p_net[k]),
-                      'p_safe': _num(a.p_safe[k]), 'guard': bool(a.guard[k]),
+        p_guard = min(float(a.p_net[k]), cap) if a.guard[k] else float(a.p_net[k])
+        tiles.append({'safe': truth[key], 'p_net': _num(a.p_net[k]), 'p_guard': _num(p_guard),
+                      'p_safe': _num(a.p_safe[k]), 'ood': _num(ood[k]),
+                      'guard': bool(a.guard[k]),
                       'guard_hits': int(a.guard_hits[k]), 'kinds': kinds.get(key, []),
                       'centre': key in centres})
-    doc = {'condition': name, 'seed': seed, 'tiles': tiles,
+    doc = {'condition': name, 'seed': seed, 'tiles': tiles, 'ood_reference': res.ood_reference,
            'obstacles': [o.get('model', o['kind'])
                          for o in json.loads(labels.read_text())['obstacles']],
            'assess_seconds': res.timings['assess'], 'seconds': time.perf_counter() - t0}
@@ -307,7 +316,7 @@ def summarise(docs: list[dict[str, Any]]) -> dict[str, Any]:
     tiles = [t for d in docs for t in d['tiles']]
     fired = [t for t in tiles if t['guard']]
     return {'flights': len(docs), 'cnn': scores(tiles, 'p_net'),
-            'cnn_guard': scores(tiles, 'p_safe'),
+            'cnn_guard': scores(tiles, 'p_guard'), 'cnn_guard_ood': scores(tiles, 'p_safe'),
             'guard_fired': len(fired), 'guard_fired_safe': sum(t['safe'] for t in fired),
             'guard_added_alarms': sum(t['safe'] and t['p_net'] is not None
                                       and t['p_net'] >= 0.5 for t in fired),
@@ -354,10 +363,22 @@ def by_kind(docs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
                          'guard_fired': float(np.mean([t['guard'] for t in ts])) if ts else None,
                          'cnn_ge_0.5': float(np.mean([t['p_net'] >= 0.5 for t in ts]))
                          if ts else None,
-                         'cnn_guard_ge_0.5': float(np.mean([t['p_safe'] >= 0.5 for t in ts]))
+                         'cnn_guard_ge_0.5': float(np.mean([t['p_guard'] >= 0.5 for t in ts]))
                          if ts else None}
         out[kind] = row
     return out
+
+
+def ood_table(summary: dict[str, dict[str, Any]]) -> str:
+    rows = ['| condition | unknown CNN + guard / + OOD | AUC | obstacle >= 0.5 | obstacle >= 0.9 '
+            '| false alarms |', '|---|---:|---:|---:|---:|---:|']
+    for name, s in summary.items():
+        g, o = s['cnn_guard'], s['cnn_guard_ood']
+        rows.append(f'| {name} | {_pct(g["unknown"] / g["tiles"])} / '
+                    f'{_pct(o["unknown"] / o["tiles"])} | {_auc(o["auc"])} | '
+                    f'{_pct(o["obstacle_ge_0.5"])} | {_pct(o["obstacle_ge_0.9"])} | '
+                    f'{_pct(o["false_alarms"])} |')
+    return '\n'.join(rows)
 
 
 def kind_table(kinds: dict[str, dict[str, Any]]) -> str:
@@ -404,6 +425,8 @@ def main() -> int:
         summary['all with obstacles'] = summarise(docs)
         summary['all with obstacles']['by_kind'] = by_kind(docs)
     print(table(summary))
+    print()
+    print(ood_table(summary))
     if obstacle:
         print()
         print(kind_table(summary['all with obstacles']['by_kind']))

@@ -8,13 +8,13 @@ model saw it, no augmentation):
   to the nearer of the two class means under their shared covariance (Lee et al., NeurIPS
   2018), with a small ridge so the 128 x 128 covariance inverts;
 * ``knn``: distance of the L2-normalised penultimate features to their k-th nearest training
-  feature (Sun et al., ICML 2022), k = 10;
+  feature (Sun et al., ICML 2022), k = 10: what :mod:`landing_zone.judging.ood` ships;
 * ``density``: Mahalanobis distance of simple input statistics (share of occupied, free and
   unobserved voxels of the cube, mean input, returns in the column, observed fraction) to the
   training ones: the statistics-of-the-input idea, no network involved.
 
 They are scored on the tiles of flights unlike the training set: the final density maps of
-``scripts/guard_eval.py``-style flights saved as ``.npz`` (``hits``, ``passes``, ``lo``,
+``scripts/guard_eval.py --keep-maps`` flights saved as ``.npz`` (``hits``, ``passes``, ``lo``,
 ``index``, ``ground_z``, ``p_safe`` the network's P(safe)) with their ``.labels.json``. A
 tile's network judgement is an *error* when an obstacle tile gets P(safe) >= 0.5 or a safe one
 P(safe) < 0.5. Printed per score: the AUROC of the score for errors (0.5 = no signal), and what
@@ -23,6 +23,9 @@ training set (share of tiles made unknown; obstacle tiles at P(safe) >= 0.5 amon
 judged; false alarms)::
 
     python scripts/ood_eval.py --train data/synth2 --scenes 1500 runs/x/*.npz --json ood.json
+
+The shipped reference is not fitted here but by ``landing-zone fit-ood``
+(:mod:`landing_zone.learn.ood_fit`); this script measures the choice of score.
 """
 from __future__ import annotations
 
@@ -35,23 +38,13 @@ from typing import Any
 import numpy as np
 
 
-def penultimate(model: Any, inputs: np.ndarray,
-                batch: int = 256) -> tuple[np.ndarray, np.ndarray]:
-    """(T, D) penultimate features and (T,) P(safe) of inputs (T, 1, S, S, S)."""
-    import torch
+def penultimate(model: Any, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, D) penultimate features and (T,) P(safe), as the assessor computes them."""
+    from landing_zone.judging.inference import Predictor
 
-    feats, probs = [], []
-    model.eval()
-    with torch.inference_mode():
-        for s in range(0, len(inputs), batch):
-            x = torch.as_tensor(inputs[s:s + batch])
-            f = model.dense(model.features(x).reshape(len(x), -1))  # (B, D)
-            logit = model.head(f).squeeze(1) / model.temperature  # (B,)
-            feats.append(f.numpy().astype(np.float64))
-            probs.append(torch.sigmoid(logit).numpy())
-    if not feats:
-        return np.zeros((0, 0)), np.zeros(0)
-    return np.concatenate(feats), np.concatenate(probs)
+    with Predictor(model) as predictor:
+        p, f = predictor.with_features(inputs)
+    return f.astype(np.float64), p
 
 
 def input_stats(inputs: np.ndarray, n_returns: np.ndarray, observed: np.ndarray) -> np.ndarray:
@@ -77,23 +70,20 @@ class Gaussian:
 
 
 class KNN:
+    """The shipped signal (:class:`landing_zone.judging.ood.FeatureReference`) on ``x``."""
+
     def __init__(self, x: np.ndarray, k: int = 10) -> None:
-        from sklearn.neighbors import NearestNeighbors
-        self.k = k
-        self.nn = NearestNeighbors(n_neighbors=k).fit(_unit(x))
+        from landing_zone.judging.ood import FeatureReference, unit_rows
+        self.ref = FeatureReference(unit_rows(x), k, 1.0, 100.0, '')
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return self.nn.kneighbors(_unit(x))[0][:, -1]
-
-
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-12)
+        return self.ref.distance(x).astype(np.float64)
 
 
 def training_reference(root: Path, scenes: int, model: Any) -> dict[str, np.ndarray]:
     """Features, statistics and labels of up to ``scenes`` training scenes (evenly spread)."""
-    from landing_zone.sim.shards import SceneDataset
     from landing_zone.judging.tiles import scene_to_input
+    from landing_zone.sim.shards import SceneDataset
 
     ds = SceneDataset(root, 'train')
     pick = np.unique(np.linspace(0, len(ds) - 1, min(scenes, len(ds))).astype(int))
@@ -170,15 +160,18 @@ def main() -> int:
     from landing_zone.judging.checkpoint import load_model
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('maps', nargs='+', type=Path, help='final maps (.npz) with labels beside')
+    ap.add_argument('maps', nargs='*', type=Path, help='final maps (.npz) with labels beside')
     ap.add_argument('--train', type=Path, required=True, help='synth2 dataset directory')
     ap.add_argument('--scenes', type=int, default=1500)
     ap.add_argument('--model', type=Path, default=None)
     ap.add_argument('--guard', action='store_true', help='the guard caps P(safe) first')
     ap.add_argument('--json', type=Path, default=None)
     args = ap.parse_args()
-    model, _ = load_model(args.model or default_model_path())
+    model_path = args.model or default_model_path()
+    model, _ = load_model(model_path)
     ref = training_reference(args.train, args.scenes, model)
+    if not args.maps:
+        return 0
     flights = [flight_tiles(m, model, args.guard) for m in args.maps]
     tiles = {k: np.concatenate([f[k] for f in flights]) for k in flights[0]}
     results: dict[str, Any] = {'train_scenes': int(len(ref['labels'])),

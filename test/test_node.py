@@ -218,6 +218,8 @@ def test_every_cloud_of_a_played_flight_is_accounted_for(rate, flight, model_fil
         listener.spin_until(lambda: False, timeout=0.5)  # the final diagnostics
         integrated, drops = listener.accounted(len(stamps))
         assert integrated + sum(drops.values()) == len(stamps), drops
+        # the test model has no OOD reference beside it: the node says the signal is off
+        assert listener.diag()['OOD reference'].startswith('none (none beside the model')
         if rate == 1.0:
             assert integrated == len(stamps), drops
             assert listener.spin_until(lambda: listener.grid_at(stamps[-1]), timeout=30)
@@ -226,7 +228,7 @@ def test_every_cloud_of_a_played_flight_is_accounted_for(rate, flight, model_fil
     finally:
         log = stop(node)
     assert node.returncode == 0, log
-    assert 'ready in ' in log, log
+    assert 'ready in ' in log and 'OOD reference none' in log, log
     if rate == 1.0:
         compare_with_replay(listener, bag, model_file, exact=True)
 

@@ -150,6 +150,8 @@ def test_report_and_png(replayed):
     p = [t['p_safe'] for t in doc['tiles']]
     assert sum(v is None for v in p) == int((~res.assessment.known).sum())
     assert doc['config']['map.size_xy'] == 8.0 and doc['config']['region_center'] == []
+    # the test model has no OOD reference beside it: the report says the signal was off
+    assert doc['ood_reference'] is None and res.ood_reference is None
     assert (d / 'map.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
 
@@ -228,5 +230,6 @@ def test_cli_replay_prints_a_summary(tmp_path, flight, model_file):
                   tmp_path / 'r.json', '--model', model_file, '--params', params)
     assert out.returncode == 0, out.stderr
     assert 'replayed 20 clouds (50,000 returns' in out.stdout and 'real time' in out.stdout
+    assert 'OOD reference: none' in out.stdout
     doc = json.loads((tmp_path / 'r.json').read_text())
     assert len(doc['tiles']) == 64 and doc['stats']['assessments'] == 2

@@ -168,8 +168,16 @@ class AssessorNode(Node):
             f'ready in {self.ready_seconds:.2f} s (model {t_model:.2f} s, warm-up '
             f'{t_warm:.2f} s): assessing {config.map.size_xy:g} m of '
             f'{config.tiles.tile_size:g} m tiles in frame {config.frame_id!r}, {mode}; model '
-            f'{self.assessor.model_path} ({self.assessor.model.config.spec}); listening on '
-            f'{self._points_topic}')
+            f'{self.assessor.model_path} ({self.assessor.model.config.spec}); OOD reference '
+            f'{self._ood_text()}; listening on {self._points_topic}')
+
+    def _ood_text(self) -> str:
+        """Which OOD reference judges with the model, for the log and /diagnostics."""
+        a = self.assessor
+        if a.ood is None:
+            why = 'ood.enabled false' if not a.config.ood.enabled else 'none beside the model'
+            return f'none ({why}: the signal is off)'
+        return str(a.ood_path)
 
     def _subscribe(self, rest: dict[str, Any], t_start: float) -> float:
         """Create the input subscriptions (the last thing the node does before it is ready)."""
@@ -353,6 +361,7 @@ class AssessorNode(Node):
 
         values = self.pipeline.diagnostics()
         values['ready time [s]'] = f'{self.ready_seconds:.2f}'
+        values['OOD reference'] = self._ood_text()
         drops = self.pipeline.dropped_clouds()
         grew = {r: n - self._reported.get(r, 0) for r, n in drops.items()
                 if n > self._reported.get(r, 0)}

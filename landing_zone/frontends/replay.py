@@ -70,6 +70,7 @@ class ReplayResult:
             ``assess_wait`` (what of it the loop waited for), ``write`` (building and writing
             the output messages), ``loop`` (read + ingest + assess_wait + write), ``report``
             (JSON and PNG).
+        ood_reference: the OOD reference file judged with (None: the signal was off).
     """
 
     assessment: Assessment
@@ -80,6 +81,7 @@ class ReplayResult:
     top_view: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     timings: dict[str, float] = field(default_factory=dict)
     survey: dict[str, Any] | None = None
+    ood_reference: str | None = None
 
     @property
     def realtime_factor(self) -> float:
@@ -250,11 +252,14 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
     res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
                        seconds=0.0, assessments=passes.count, top_view=top, timings=timings,
-                       survey=survey.describe() if survey is not None else None)
+                       survey=survey.describe() if survey is not None else None,
+                       ood_reference=str(assessor.ood_path) if assessor.ood_path else None)
     t_report = time.perf_counter()
     if report is not None:
         doc = result.to_report(stats)
         doc['model'] = str(assessor.model_path) if assessor.model_path else None
+        # without a reference the OOD signal is off: say so (null)
+        doc['ood_reference'] = res.ood_reference
         doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
                          for k, v in assessor.config.to_flat().items()}
         doc['config']['region_center'] = list(assessor.config.center or [])

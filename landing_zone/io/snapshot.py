@@ -8,13 +8,14 @@ plus a string-to-string header; loading it runs no code from the file, unlike pi
   :meth:`DensityMap.export_state`), the tiles the map has marked changed since the last pass,
 * the tiles' results (P(safe), confidence, ground height, ...) and the newest cloud stamp,
 * a JSON header: format version, frame, the map's and tiles' geometry, the mode (follow, or the
-  fixed region's centre), the model's weight digest and when it was written.
+  fixed region's centre), the model's weight digest, the OOD reference's digest and when it
+  was written.
 
 Loading refuses, with one line naming the first difference, a file that is not such a snapshot or
 was made for another frame, voxel size, map extent, tiling or region: its counts would mean
-something else here. A snapshot made with another model keeps its counts; its tiles are judged
-again by this one at the next pass. Writing goes through a temporary file and ``os.replace``, so
-a crash mid-write leaves the previous snapshot whole.
+something else here. A snapshot made with another model or OOD reference keeps its counts; its
+tiles are judged again by this one at the next pass. Writing goes through a temporary file and
+``os.replace``, so a crash mid-write leaves the previous snapshot whole.
 """
 from __future__ import annotations
 
@@ -56,6 +57,8 @@ def snapshot_header(assessor: Assessor) -> dict[str, Any]:
         'center': None if cfg.center is None else [float(c) for c in cfg.center],
         'model': str(assessor.model_metadata.get('weights_sha256')
                      or assessor.model.config.spec),
+        # the OOD reference the tiles were judged with (None: none)
+        'ood': assessor.ood.digest if assessor.ood is not None else None,
     }
 
 
@@ -149,7 +152,10 @@ def load_snapshot(path: str | os.PathLike[str], assessor: Assessor) -> dict[str,
             what = 'region_center' if key == 'center' else key
             raise SnapshotError(f'snapshot {p} was made for {what} {_show(got)}, this node has '
                                 f'{_show(mine)}')
-    tiles = header.get('model') == want['model']
+    # tiles judged by another model or OOD reference are judged again; a snapshot without an
+    # 'ood' entry predates the signal (and its tiles lack the OOD distances)
+    tiles = header.get('model') == want['model'] and 'ood' in header and \
+        header['ood'] == want['ood']
     try:
         assessor.import_state(arrays, tiles=tiles)
     except ConfigError as err:

@@ -25,7 +25,7 @@ from safetensors.torch import load_file, save_file
 from landing_zone.errors import ConfigError, ModelError
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 
-__all__ = ['FORMAT', 'save_model', 'load_model', 'read_metadata']
+__all__ = ['FORMAT', 'save_model', 'load_model', 'read_metadata', 'weights_sha256']
 
 FORMAT = 'landing_zone.safety_net/1'  # checkpoint format tag in the metadata
 _META_KEY = 'landing_zone'
@@ -41,6 +41,17 @@ def _weights_digest(tensors: dict[str, torch.Tensor]) -> str:
     return sha.hexdigest()
 
 
+def _state_tensors(model: SafetyNet) -> dict[str, torch.Tensor]:
+    return {k: v.detach().to('cpu', torch.float32).contiguous()
+            for k, v in model.state_dict().items()}
+
+
+def weights_sha256(model: SafetyNet) -> str:
+    """The SHA-256 of a net's weights as :func:`save_model` records it (what an OOD
+    reference is bound to, :mod:`landing_zone.judging.ood`)."""
+    return _weights_digest(_state_tensors(model))
+
+
 def save_model(path: str | os.PathLike[str], model: SafetyNet,
                metadata: dict[str, Any] | None = None,
                extra_tensors: dict[str, torch.Tensor] | None = None) -> None:
@@ -54,8 +65,7 @@ def save_model(path: str | os.PathLike[str], model: SafetyNet,
         extra_tensors: more tensors to store under their own names (training state); they must
             not collide with the weights' names.
     """
-    tensors = {k: v.detach().to('cpu', torch.float32).contiguous()
-               for k, v in model.state_dict().items()}
+    tensors = _state_tensors(model)
     meta = dict(metadata or {})
     meta.update(format=FORMAT, model=asdict(model.config), temperature=float(model.temperature),
                 calibration_offset=float(model.offset),

@@ -14,7 +14,6 @@ from types import TracebackType
 
 import numpy as np
 import torch
-from torch import nn
 
 from landing_zone.errors import ConfigError
 from landing_zone.judging.net import SafetyNet
@@ -58,9 +57,9 @@ class Predictor:
             self._restore = torch.get_num_threads()
             torch.set_num_threads(want)
         self._key: tuple[object, ...] | None = None
-        self._net: nn.Module | None = None
+        self._net: SafetyNet | None = None
 
-    def _inference_copy(self, dtype: torch.dtype, channels_last: bool) -> nn.Module:
+    def _inference_copy(self, dtype: torch.dtype, channels_last: bool) -> SafetyNet:
         """The net in eval mode, cast to ``dtype`` (channels-last if asked); kept until the
         weights change."""
         model = self.model
@@ -104,6 +103,25 @@ class Predictor:
         Raises:
             ConfigError: inputs of the wrong shape or with NaN/Inf, or a bad precision.
         """
+        out, _ = self._run(inputs, batch_size, precision, logits, channels_last, check_finite,
+                           features=False)
+        return out
+
+    def with_features(self, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
+                      precision: str = 'auto', logits: bool = False,
+                      channels_last: bool = True, check_finite: bool = True
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """P(safe) (as :meth:`__call__`) and the penultimate features, from the same forward
+        pass: ``(T,)`` and ``(T, F)`` float32 (:meth:`SafetyNet.embed`: what the head reads;
+        the OOD signal, :mod:`landing_zone.judging.ood`, measures them)."""
+        out, feats = self._run(inputs, batch_size, precision, logits, channels_last,
+                               check_finite, features=True)
+        assert feats is not None
+        return out, feats
+
+    def _run(self, inputs: np.ndarray | torch.Tensor, batch_size: int, precision: str,
+             logits: bool, channels_last: bool, check_finite: bool, features: bool
+             ) -> tuple[np.ndarray, np.ndarray | None]:
         model = self.model
         if precision not in ('auto', 'bf16', 'fp32'):
             raise ConfigError(f"precision must be 'auto', 'bf16' or 'fp32', got {precision!r}")
@@ -125,16 +143,25 @@ class Predictor:
         net = self._inference_copy(dtype, channels_last)
         fmt = torch.channels_last_3d if channels_last else torch.contiguous_format
         out = torch.empty(x.shape[0], dtype=torch.float32)
+        feats = torch.empty((x.shape[0], model.head.in_features), dtype=torch.float32) \
+            if features else None
         with torch.inference_mode():
             for i in range(0, x.shape[0], batch_size):
                 xb = x[i:i + batch_size].to(device=device, dtype=dtype)
                 xb = xb.contiguous(memory_format=fmt)  # (B, 1, D, H, W)
-                lg, _ = net(xb)
+                if feats is None:
+                    lg, _ = net(xb)
+                else:
+                    # the forward pass in two steps, the features kept between them
+                    fb = net.embed(xb)  # (B, F)
+                    lg = net.head(fb).squeeze(1)
+                    feats[i:i + batch_size] = fb.float().cpu()
                 out[i:i + batch_size] = lg.float().cpu()
+        f = feats.numpy() if feats is not None else None
         if logits:
-            return out.numpy()
+            return out.numpy(), f
         return torch.sigmoid(out / float(model.temperature)
-                             + float(model.offset)).numpy()
+                             + float(model.offset)).numpy(), f
 
     def close(self) -> None:
         """Put torch's thread count back (if this raised it) and drop the inference copy."""

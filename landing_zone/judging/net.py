@@ -144,14 +144,19 @@ class SafetyNet(nn.Module):
     def spec(self) -> str:
         return self.config.spec
 
-    def forward(self, x: torch.Tensor, targets: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Logits (B,) of P(safe), and the mean binary cross-entropy if targets (1 = safe)."""
+    def embed(self, x: torch.Tensor) -> torch.Tensor:
+        """The penultimate features (B, F): what the head reads (the last dense layer's
+        output; the flattened conv features for a spec without one)."""
         assert x.dim() == 5 and x.shape[1] == 1, f'expected (B, 1, S, S, S), got {x.shape}'
         x = self.features(x)  # (B, C, D', H', W')
         x = x.reshape(x.shape[0], -1)  # (B, C * D' * H' * W')
-        x = self.dense(x)  # (B, units)
-        logits = self.head(x).squeeze(1)  # (B,)
+        out: torch.Tensor = self.dense(x)  # (B, units)
+        return out
+
+    def forward(self, x: torch.Tensor, targets: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Logits (B,) of P(safe), and the mean binary cross-entropy if targets (1 = safe)."""
+        logits = self.head(self.embed(x)).squeeze(1)  # (B,)
         loss = None
         if targets is not None:
             loss = F.binary_cross_entropy_with_logits(logits.float(), targets.float())
