@@ -43,6 +43,17 @@ class DatasetName(str, Enum):
     hybrid = 'hybrid'
 
 
+class Engine(str, Enum):
+    local = 'local'
+    ray = 'ray'
+
+
+_ENGINE_HELP = ('local: processes on this machine; ray: Ray tasks on a cluster (--address, '
+                'else RAY_ADDRESS, else a local one); needs pip install \'landing_zone[ray]\'.')
+_ADDRESS_HELP = ('Ray cluster address (ray://HOST:10001, HOST:6379 or auto); default '
+                 'RAY_ADDRESS, else a local cluster of --workers CPUs.')
+
+
 class Reliability(str, Enum):
     reliable = 'reliable'
     best_effort = 'best_effort'
@@ -391,6 +402,46 @@ def evaluate(
     print(res['table'], end='')
 
 
+@app.command(name='evaluate-flights',
+             help='Replay recorded flights, each with its ground truth beside it '
+                  '(SITE.labels.json for SITE.mcap, as simulate-flight writes it), and score '
+                  'the final tiles per flight and pooled: AUC, ECE, the share of obstacle '
+                  'tiles given P(safe) >= 0.5 and the share of labelled tiles unjudged. The '
+                  'flights run in parallel, here or on a Ray cluster, with the same '
+                  'figures.\n\n'
+                  'Examples:\n\n  landing-zone evaluate-flights a.mcap b.mcap --json '
+                  'flights.json\n\n'
+                  '  landing-zone evaluate-flights flights/*.mcap --engine ray\n\n'
+                  '  landing-zone evaluate-flights /shared/flights/*.mcap --engine ray '
+                  '--address ray://head:10001 --model /shared/models/m.safetensors')
+def evaluate_flights(
+    bags: Annotated[list[Path], typer.Argument(
+        help='Flight bags (.mcap, .db3 or directory; ROS 1 .bag), each with BAG.labels.json.')],
+    engine: Annotated[Engine, typer.Option(help=_ENGINE_HELP)] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
+    json_path: Annotated[Optional[Path], typer.Option(
+        '--json', help='Write the figures (per flight and pooled) here.')] = None,
+    model: Annotated[Optional[Path], typer.Option(
+        help='Model file; default the shipped one.')] = None,
+    workers: Annotated[Optional[int], typer.Option(
+        help='Processes, or the CPUs of a local Ray cluster; default one per core.', min=1)
+    ] = None,
+    points_topic: Annotated[str, typer.Option(
+        help='PointCloud2 topic (fixed frame).')] = '/lidar/points',
+    pose_topic: Annotated[str, typer.Option(
+        help='PoseStamped topic of the sensor.')] = '/lidar/pose',
+) -> None:
+    from landing_zone.learn.flights import evaluate_flights as run_flights, markdown_flights
+
+    doc = run_flights(bags, engine=engine.value, address=address, workers=workers,
+                      model=model, points_topic=points_topic, pose_topic=pose_topic,
+                      json_path=json_path)
+    print(markdown_flights(doc), end='')
+    print(f'{len(doc["flights"])} flight(s) in {doc["seconds"]:.1f} s on {doc["engine"]} '
+          f'({doc["workers"]} worker(s)): {doc["flights_per_s"]} flights/s'
+          + (f'; wrote {json_path}' if json_path is not None else ''))
+
+
 # --- simulate ---------------------------------------------------------------------------------
 
 @app.command(help='Labelled training/test patches of the paper\'s Table I sweep (synth1: boxes, '
@@ -426,14 +477,23 @@ def simulate(
     points_topic: Annotated[str, typer.Option(
         help='hybrid: PointCloud2 topic.')] = '/lidar/points',
     pose_topic: Annotated[str, typer.Option(help='hybrid: PoseStamped topic.')] = '/lidar/pose',
+    engine: Annotated[Engine, typer.Option(
+        help='Where the shards are simulated (same bytes either way). ' + _ENGINE_HELP)
+    ] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
 ) -> None:
+    from landing_zone.engines import check_engine
     from landing_zone.errors import ConfigError
+
+    check_engine(engine.value, address)
 
     if dataset is DatasetName.hybrid:
         from landing_zone.sim.hybrid import simulate_hybrid
 
         if not from_ and not test_from:
             raise ConfigError('--dataset hybrid needs the flights: --from BAG (repeat for more)')
+        if engine is not Engine.local:
+            raise ConfigError('--dataset hybrid runs on this machine only (--engine local)')
         if scenes is not None or split != 'both':
             raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
                               'flight: not --scenes or --split')
@@ -446,10 +506,12 @@ def simulate(
         if from_ or test_from or region is not None:
             raise ConfigError('--from, --test-from and --region are for --dataset hybrid')
         s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
-                             split=split, progress=not quiet)
+                             split=split, progress=not quiet, engine=engine.value,
+                             address=address)
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
-          f'worker(s), {s["scenes_per_s"]:.1f} scenes/s; {s["bytes"] / 1e6:.1f} MB')
+          f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '
+          f'scenes/s; {s["bytes"] / 1e6:.1f} MB')
 
 
 _KINDS = 'rock,tire,cinder_block,box'
