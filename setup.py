@@ -42,6 +42,8 @@ setup(
         'dev': ['pytest>=7', 'hypothesis>=6', 'pytest-timeout>=2', 'flake8>=6', 'mypy>=1.8',
                 'mcap>=1.1'],  # mcap: the tests write an unindexed file with it
         'bench': ['octomap-python>=1.9'],
+        # --engine ray (simulate, evaluate-flights, train-fleet, tune): Ray's core only
+        'ray': ['ray>=2.9'],
     },
     zip_safe=True,
     maintainer='landing_zone developers',

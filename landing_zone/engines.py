@@ -65,7 +65,8 @@ def require_ray() -> Any:
 
 def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], *, engine: str = 'local',
               workers: int | None = None, address: str | None = None, retries: int = 3,
-              start_method: str | None = None) -> Iterator[tuple[int, Any]]:
+              start_method: str | None = None, fresh: bool = False
+              ) -> Iterator[tuple[int, Any]]:
     """Run ``fn(task)`` for every task; yield ``(index, result)`` as each one finishes.
 
     Args:
@@ -78,6 +79,11 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], *, engine: str = '
             None: ``RAY_ADDRESS`` if set, else a local cluster.
         retries: ray: times a task whose worker died is run again.
         start_method: local: the ``multiprocessing`` start method (None: the platform's).
+        fresh: run every task in a process of its own (a worker ends after one task). For
+            trainings: torch keeps process-wide state (its thread pool, oneDNN's primitive
+            cache) that a worker's earlier tasks leave behind, and with it a training's last
+            bits could depend on which tasks the worker ran before. Local fresh workers are
+            spawned (``start_method`` is ignored).
 
     Raises:
         EngineError: bad arguments, Ray missing, or a worker that died (after the retries).
@@ -93,8 +99,8 @@ def run_tasks(fn: Callable[[Any], Any], tasks: Sequence[Any], *, engine: str = '
     # The pool or the cluster starts here, before the caller's first next(): a caller that
     # forks (start_method='fork') must do so before it starts threads of its own.
     if engine == 'ray':
-        return _run_ray(fn, tasks, workers, address, retries)
-    return _run_local(fn, tasks, workers, start_method)
+        return _run_ray(fn, tasks, workers, address, retries, fresh)
+    return _run_local(fn, tasks, workers, 'spawn' if fresh else start_method, fresh)
 
 
 def _usable_cores() -> int:
@@ -109,14 +115,15 @@ def _in_process(fn: Callable[[Any], Any], tasks: Sequence[Any]) -> Iterator[tupl
 
 
 def _run_local(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int | None,
-               start_method: str | None) -> Iterator[tuple[int, Any]]:
+               start_method: str | None, fresh: bool) -> Iterator[tuple[int, Any]]:
     n = min(workers or _usable_cores(), len(tasks))
-    if n <= 1:
+    if n <= 1 and not fresh:
         return _in_process(fn, tasks)
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context(start_method))
+    pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context(start_method),
+                               max_tasks_per_child=1 if fresh else None)
     pending = {pool.submit(fn, task): i for i, task in enumerate(tasks)}
     return _drain_local(pool, pending, len(tasks))
 
@@ -144,7 +151,7 @@ def _drain_local(pool: Any, pending: dict[Any, int], total: int
 
 
 def _run_ray(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int | None,
-             address: str | None, retries: int) -> Iterator[tuple[int, Any]]:
+             address: str | None, retries: int, fresh: bool) -> Iterator[tuple[int, Any]]:
     ray = require_ray()
     import logging
 
@@ -162,7 +169,13 @@ def _run_ray(fn: Callable[[Any], Any], tasks: Sequence[Any], workers: int | None
                               f'{str(err).splitlines()[0] if str(err) else err}') from None
         started = True
     # num_cpus=1: one task per CPU of the cluster, as one process per core locally.
-    remote = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(fn)
+    options: dict[str, Any] = dict(num_cpus=1, max_retries=retries, retry_exceptions=False)
+    if fresh:
+        # max_calls=1 ends a worker after its task, but the task could still start on an idle
+        # worker another function used before: Ray keeps one pool of workers per runtime
+        # environment, so a runtime environment of their own gives fresh tasks new workers.
+        options.update(max_calls=1, runtime_env={'env_vars': {'LANDING_ZONE_FRESH_WORKER': '1'}})
+    remote = ray.remote(**options)(fn)
     try:
         pending = {remote.remote(task): i for i, task in enumerate(tasks)}
     except BaseException:
