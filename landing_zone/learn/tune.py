@@ -172,57 +172,72 @@ def _trial_task(task: tuple[Any, str, str, int, dict[str, Any], bool]) -> dict[s
         torch.set_num_threads(restore)  # the task may run in the caller's process
 
 
-def _run_trial(data: Any, storage: str, study_name: str, draw: int, cfg: TuneConfig,
-               progress: bool) -> dict[str, Any]:
-    import optuna
+def _sized(cfg: TuneConfig, draw: int) -> dict[str, Any]:
+    """The draw's spec and sizes, and why it is pruned unseen (``pruned_because``) if it is."""
+    import torch
 
-    from landing_zone.judging.checkpoint import read_metadata
     from landing_zone.judging.net import SafetyNet, SafetyNetConfig
     from landing_zone.judging.spec import parse_spec
-    from landing_zone.learn.train import TrainConfig, train
 
-    params = draw_params(cfg.seed, draw)
-    spec = spec_from_params(params)
+    spec = spec_from_params(draw_params(cfg.seed, draw))
     attrs: dict[str, Any] = {'draw': draw, 'spec': spec}
-    value = None
     try:
         parse_spec(spec, 32)
     except ConfigError as err:
         attrs['pruned_because'] = str(err)
-    if 'pruned_because' not in attrs:
+        return attrs
+    with torch.device('meta'):  # sizes only: a pruned draw may have billions of weights
         net = SafetyNet(SafetyNetConfig(spec))
-        attrs['mmac'] = round(net.flops() / 1e6, 2)
-        attrs['params'] = net.num_params()
-        if net.num_params() > cfg.max_params:
-            attrs['pruned_because'] = f'{net.num_params():,} parameters'
-        del net
-    if 'pruned_because' not in attrs:
-        out = Path(cfg.out_dir) / f'draw-{draw:04d}.safetensors'
-        if out.is_file():  # trained by an earlier run that ended before recording it
-            m = read_metadata(out).get('metrics', {})
-            auc, seconds = m.get('val_auc'), m.get('train_seconds')
-        else:
-            tcfg = TrainConfig(arch=spec, epochs=cfg.epochs, augment_copies=cfg.augment_copies,
-                               max_samples=cfg.max_samples, batch_size=cfg.batch_size,
-                               lr=cfg.lr, workers=cfg.workers, device=cfg.device,
-                               seed=cfg.seed, checkpoint_minutes=cfg.checkpoint_minutes)
-            if progress:
-                print(f'tune: draw {draw}: {spec}', file=sys.stderr)
-            summary = train(data, out, tcfg, resume=True, progress=progress)
-            auc, seconds = summary['val_auc'], summary['train_seconds']
-        attrs['seconds'] = seconds
-        attrs['model'] = str(out)
-        if auc is None:  # one class held out: nothing to compare
-            attrs['pruned_because'] = 'validation AUC undefined'
-        else:
-            value = float(auc)
+    attrs['mmac'] = round(net.flops() / 1e6, 2)
+    attrs['params'] = net.num_params()
+    if net.num_params() > cfg.max_params:
+        attrs['pruned_because'] = f'{net.num_params():,} parameters'
+    return attrs
+
+
+def _record(storage: str, study_name: str, cfg: TuneConfig, attrs: dict[str, Any],
+            value: float | None) -> None:
+    """Add the draw's trial to the study, unless another worker or run recorded it."""
+    import optuna
+
     study = optuna.load_study(study_name=study_name, storage=open_storage(storage))
-    if draw not in _finished_draws(study):
-        state = (optuna.trial.TrialState.PRUNED if value is None
-                 else optuna.trial.TrialState.COMPLETE)
-        study.add_trial(optuna.trial.create_trial(
-            state=state, value=value, params=params, distributions=_distributions(params),
-            user_attrs=attrs))
+    if attrs['draw'] in _finished_draws(study):
+        return
+    params = draw_params(cfg.seed, attrs['draw'])
+    state = optuna.trial.TrialState.PRUNED if value is None else optuna.trial.TrialState.COMPLETE
+    study.add_trial(optuna.trial.create_trial(
+        state=state, value=value, params=params, distributions=_distributions(params),
+        user_attrs=attrs))
+
+
+def _run_trial(data: Any, storage: str, study_name: str, draw: int, cfg: TuneConfig,
+               progress: bool) -> dict[str, Any]:
+    from landing_zone.judging.checkpoint import read_metadata
+    from landing_zone.learn.train import TrainConfig, train
+
+    attrs = _sized(cfg, draw)
+    value = None
+    spec = attrs['spec']
+    out = Path(cfg.out_dir) / f'draw-{draw:04d}.safetensors'
+    if out.is_file():  # trained by an earlier run that ended before recording it
+        m = read_metadata(out).get('metrics', {})
+        auc, seconds = m.get('val_auc'), m.get('train_seconds')
+    else:
+        tcfg = TrainConfig(arch=spec, epochs=cfg.epochs, augment_copies=cfg.augment_copies,
+                           max_samples=cfg.max_samples, batch_size=cfg.batch_size,
+                           lr=cfg.lr, workers=cfg.workers, device=cfg.device,
+                           seed=cfg.seed, checkpoint_minutes=cfg.checkpoint_minutes)
+        if progress:
+            print(f'tune: draw {draw}: {spec}', file=sys.stderr)
+        summary = train(data, out, tcfg, resume=True, progress=progress)
+        auc, seconds = summary['val_auc'], summary['train_seconds']
+    attrs['seconds'] = seconds
+    attrs['model'] = str(out)
+    if auc is None:  # one class held out: nothing to compare
+        attrs['pruned_because'] = 'validation AUC undefined'
+    else:
+        value = float(auc)
+    _record(storage, study_name, cfg, attrs, value)
     return attrs
 
 
@@ -277,8 +292,16 @@ def tune(data: str | os.PathLike, config: TuneConfig | None = None,
         todo_data: Any = data
     else:
         todo_data = str(Path(data).resolve())
-    tasks = [(todo_data, storage, study_name, d, cfg_dict, progress and cfg.parallel == 1)
-             for d in range(cfg.trials) if d not in done]
+    tasks = []
+    for d in range(cfg.trials):
+        if d in done:
+            continue
+        attrs = _sized(TuneConfig(**cfg_dict), d)
+        if 'pruned_because' in attrs:  # recorded here: no worker needed to say so
+            _record(storage, study_name, TuneConfig(**cfg_dict), attrs, None)
+        else:
+            tasks.append((todo_data, storage, study_name, d, cfg_dict,
+                          progress and cfg.parallel == 1))
     for _, attrs in run_tasks(_trial_task, tasks, engine=engine, workers=cfg.parallel,
                               address=address, start_method='spawn', fresh=True):
         if progress:
