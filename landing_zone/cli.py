@@ -70,11 +70,12 @@ def _root() -> None:
 @app.command(help='Run the project\'s performance benchmarks and print their figures.\n\n'
                   'Examples:\n\n  landing-zone bench\n\n  landing-zone bench integrate\n\n'
                   '  landing-zone bench integrate --batches 50\n\n'
-                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30')
+                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30\n\n'
+                  '  landing-zone bench engines  (local processes beside a local Ray cluster)')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
-        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak); '
-             'default all but live and soak.')] = None,
+        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak, '
+             'engines); default all but live, soak and engines.')] = None,
     batches: Annotated[int, typer.Option(
         help='Batches of returns per measurement (live: 3 per second of each rate).')] = 30,
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,

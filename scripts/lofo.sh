@@ -6,6 +6,9 @@
 #   usage: scripts/lofo.sh [WORKDIR]          (default runs/lofo; data in data/synth3*)
 # Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
 # FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); WORKERS.
+# The LOFO models train side by side (`landing-zone train-fleet --lofo`): FLEET_WORKERS at once
+# (default one per core), as processes here or, with ENGINE=ray, as Ray tasks (ADDRESS names a
+# cluster; then WORKDIR and the data must be paths every worker mounts).
 set -euo pipefail
 work=${1:-runs/lofo}
 lz=${LZ:-.venv/bin/landing-zone}
@@ -31,9 +34,12 @@ train_one() {  # NAME HOLD-OUT...
         2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
 }
 
-for h in $families $vegetation; do
-    train_one "lofo_${h//:/_}" "$h"
-done
+fleet=(--engine "${ENGINE:-local}")
+[ -n "${ADDRESS:-}" ] && fleet+=(--address "$ADDRESS")
+[ -n "${FLEET_WORKERS:-}" ] && fleet+=(--workers "$FLEET_WORKERS")
+/usr/bin/time -f "lofo: the LOFO models %e s wall, %U s user" "$lz" train-fleet \
+    --data "$train_data" --out-dir "$work" --lofo --epochs "$epochs" --augment-copies "$copies" \
+    --cache-voxels "$cache" --max-samples "$max_samples" "${fleet[@]}"
 epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
 train_one final
 models=(--model "$work/final.safetensors")
