@@ -11,7 +11,9 @@ which engine, how many workers and in which order they finish change nothing but
 * ``ray``: one Ray task per item on a cluster: ``address`` (or the ``RAY_ADDRESS`` environment
   variable) names one, else a local cluster of ``workers`` CPUs is started for the run and shut
   down after it. A task whose worker process dies is retried (``retries`` times) by Ray;
-  exceptions raised by the task itself are not retried but raised here as they were. Ray ships
+  exceptions raised by the task itself are not retried: a
+  :class:`~landing_zone.errors.LandingZoneError` is raised here as it was, anything else
+  with the worker's traceback. Ray ships
   functions and results between its processes with pickle, as a process pool does; no file the
   tools read is ever unpickled.
 
@@ -198,17 +200,19 @@ def _drain_ray(ray: Any, pending: dict[Any, int], total: int, retries: int, star
                     result = ray.get(ref)
                 except rex.RayTaskError as err:
                     cause = err.cause if isinstance(err.cause, BaseException) else None
-                    if isinstance(cause, LandingZoneError):
+                    if isinstance(cause, LandingZoneError):  # bad input: one line
                         raise cause from None
-                    raise EngineError(f'task {i} of {total} failed on Ray: '
-                                      f'{type(cause).__name__ if cause else "error"}: '
-                                      f'{cause if cause else err}') from None
+                    raise  # a bug: with the worker's traceback
                 except (rex.WorkerCrashedError, rex.NodeDiedError,
                         rex.ObjectLostError) as err:
                     raise EngineError(f'task {i} of {total}: its Ray worker died '
                                       f'{retries + 1} time(s) ({type(err).__name__}); finished '
                                       'work is kept: rerun the same command to carry on'
                                       ) from None
+                except rex.RayError as err:  # out of memory, cancelled, unschedulable, ...
+                    first = str(err).strip().splitlines()[0] if str(err).strip() else ''
+                    raise EngineError(f'task {i} of {total} failed on Ray: '
+                                      f'{type(err).__name__}: {first}') from None
                 yield i, result
     finally:
         for ref in pending:
