@@ -135,15 +135,16 @@ def train_fleet(data: Any, out_dir: str | os.PathLike[str], jobs: Sequence[tuple
                           'cluster file system); object-store URIs are not supported')
     for _, cfg in jobs:
         cfg.validate()
-    out = Path(out_dir)
+    out = Path(out_dir).resolve()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise ConfigError(f'cannot create {out}: {err.strerror}') from None
     if isinstance(data, (str, os.PathLike)):
         data = [data]
-    data = [str(d) for d in data] if all(isinstance(d, (str, os.PathLike)) for d in data) \
-        else data
+    # absolute: a worker's working directory is not the caller's
+    data = [str(Path(d).resolve()) for d in data] if all(
+        isinstance(d, (str, os.PathLike)) for d in data) else data
     models: dict[str, dict[str, Any]] = {}
     tasks, task_names = [], []
     for name, cfg in jobs:

@@ -80,8 +80,10 @@ def flight_task(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | 
         raise ConfigError(f'flight {bag} has no ground truth beside it: {labels} is missing '
                           '(simulate-flight writes it; insert-obstacles extends it)')
     read_labels(labels)
-    return {'bag': str(bag), 'labels': str(labels),
-            'model': None if model is None else str(model),
+    # absolute: a worker's working directory is not the caller's (on a cluster, the paths
+    # must be where every worker mounts them)
+    return {'bag': str(bag.resolve()), 'labels': str(labels.resolve()),
+            'model': None if model is None else str(Path(model).resolve()),
             'points_topic': points_topic, 'pose_topic': pose_topic}
 
 

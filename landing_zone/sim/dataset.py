@@ -152,7 +152,7 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         if shard_complete(out / shard['file'], indices):
             done += len(indices)
         else:
-            tasks.append((str(out), dataset, int(seed), k, indices))
+            tasks.append((str(out.resolve()), dataset, int(seed), k, indices))
     workers = min(workers or os.cpu_count() or 1, max(len(tasks), 1))
     start_method = None
     if engine == 'local' and workers > 1:
