@@ -165,6 +165,7 @@ def _figures(doc):
                 if k == 'flights' else v) for k, v in doc.items() if k not in drop}
 
 
+@pytest.mark.slow
 def test_evaluate_flights_same_figures_across_engines(ray_cluster, flights, model_file,
                                                       tmp_path):
     from landing_zone.io.labels import read_labels
@@ -217,6 +218,7 @@ def _weights(path: Path) -> dict[str, np.ndarray]:
     return load_file(path)
 
 
+@pytest.mark.slow
 def test_fleet_members_same_weights_across_engines(ray_cluster, tiny_data, tmp_path):
     from landing_zone.learn.fleet import fleet_jobs, train_fleet
     from landing_zone.learn.train import TrainConfig
@@ -255,6 +257,7 @@ def test_lofo_fleet_names_one_model_per_family():
         fleet_jobs(TrainConfig(), ['obstacle:unicorn'])
 
 
+@pytest.mark.slow
 def test_tune_same_draws_across_engines(ray_cluster, tiny_data, tmp_path):
     from landing_zone.learn.tune import TuneConfig, tune
 
