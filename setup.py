@@ -45,6 +45,8 @@ setup(
         # landing-zone replay FILE.las / FILE.laz (LAZ through the lazrs backend); pyproj
         # reads the file's CRS (its unit) and projects SBET trajectories
         'survey': ['laspy[lazrs]>=2.4', 'pyproj>=3.4'],
+        # --engine ray (simulate, evaluate-flights, train-fleet, tune): Ray's core only
+        'ray': ['ray>=2.9'],
     },
     zip_safe=True,
     maintainer='landing_zone developers',

@@ -43,6 +43,17 @@ class DatasetName(str, Enum):
     hybrid = 'hybrid'
 
 
+class Engine(str, Enum):
+    local = 'local'
+    ray = 'ray'
+
+
+_ENGINE_HELP = ('local: processes on this machine; ray: Ray tasks on a cluster (--address, '
+                'else RAY_ADDRESS, else a local one); needs pip install \'landing_zone[ray]\'.')
+_ADDRESS_HELP = ('Ray cluster address (ray://HOST:10001, HOST:6379 or auto); default '
+                 'RAY_ADDRESS, else a local cluster of --workers CPUs.')
+
+
 class Reliability(str, Enum):
     reliable = 'reliable'
     best_effort = 'best_effort'
@@ -59,11 +70,12 @@ def _root() -> None:
 @app.command(help='Run the project\'s performance benchmarks and print their figures.\n\n'
                   'Examples:\n\n  landing-zone bench\n\n  landing-zone bench integrate\n\n'
                   '  landing-zone bench integrate --batches 50\n\n'
-                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30')
+                  '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30\n\n'
+                  '  landing-zone bench engines  (local processes beside a local Ray cluster)')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
-        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak); '
-             'default all but live and soak.')] = None,
+        help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak, '
+             'engines); default all but live, soak and engines.')] = None,
     batches: Annotated[int, typer.Option(
         help='Batches of returns per measurement (live: 3 per second of each rate).')] = 30,
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,
@@ -351,32 +363,121 @@ def train(
           f'at temperature {s["temperature"]:.3f}; log {s["log"]}')
 
 
-@app.command(help='Random search over the paper\'s architecture space (Optuna), resumable '
-                  'from its storage; prints the trials best first.\n\n'
+@app.command(help='Random search over the paper\'s architecture space, resumable from its '
+                  'Optuna storage; prints the trials best first. Draw K of the search does not '
+                  'depend on how many run at once: --parallel trials run as processes here or '
+                  'as Ray tasks (--engine ray) and record themselves in the storage.\n\n'
                   'Examples:\n\n  landing-zone tune --data data/synth1 --trials 10\n\n'
                   '  landing-zone tune --data data/synth1 --trials 50 --paper-budget '
-                  '--storage sqlite:///tune.db')
+                  '--storage sqlite:///tune.db\n\n'
+                  '  landing-zone tune --data /shared/synth1 --trials 50 --engine ray --address '
+                  'auto --parallel 16 --storage journal:/shared/tune.journal --out-dir '
+                  '/shared/tune_models')
 def tune(
     data: Annotated[Path, typer.Option(help='Dataset directory (the paper uses synth1).')],
-    trials: Annotated[int, typer.Option(help='Finished trials the study should hold.')] = 10,
-    storage: Annotated[str, typer.Option(help='Optuna storage URL.')] = 'sqlite:///tune.db',
+    trials: Annotated[int, typer.Option(help='Draws the study should hold.')] = 10,
+    storage: Annotated[str, typer.Option(
+        help='Optuna storage: an RDB URL (sqlite:///tune.db: one machine) or journal:PATH, a '
+             'journal file that workers on many machines share through a common file system.')
+    ] = 'sqlite:///tune.db',
     budget_samples: Annotated[int, typer.Option(
         help='Training samples per epoch of each trial (0: all).')] = 2000,
     epochs: Annotated[int, typer.Option(help='Epochs per trial.')] = 2,
     paper_budget: Annotated[bool, typer.Option(
         help='Full training per trial (6 epochs x 20 copies, no cap).')] = False,
     out_dir: Annotated[Path, typer.Option(
-        help='Where the trial models go.')] = Path('tune_models'),
-    workers: Annotated[int, typer.Option(help='Data loader processes.')] = 0,
+        help='Where the trial models go (on a cluster: a path every worker mounts).')]
+    = Path('tune_models'),
+    workers: Annotated[int, typer.Option(help='Data loader processes of each trial.')] = 0,
     device: Annotated[Device, typer.Option(help='Where to train.')] = Device.cpu,
     seed: Annotated[int, typer.Option(help='Seed of the search and the trainings.')] = 0,
+    parallel: Annotated[int, typer.Option(
+        help='Trials at once (processes here, or Ray tasks).', min=1)] = 1,
+    threads: Annotated[int, typer.Option(
+        help='Torch threads of each trial (0: the cores / --parallel).', min=0)] = 0,
+    engine: Annotated[Engine, typer.Option(help=_ENGINE_HELP)] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
 ) -> None:
+    from landing_zone.engines import check_engine
     from landing_zone.learn.tune import TuneConfig, format_rows, tune as run_tune
 
-    common = dict(trials=trials, workers=workers, device=device.value, seed=seed)
+    check_engine(engine.value, address)
+    common = dict(trials=trials, workers=workers, device=device.value, seed=seed,
+                  parallel=parallel, threads=threads)
     cfg = (TuneConfig.paper(**common) if paper_budget
            else TuneConfig(epochs=epochs, max_samples=budget_samples, **common))
-    print(format_rows(run_tune(data, cfg, storage=storage, out_dir=out_dir)))
+    print(format_rows(run_tune(data, cfg, storage=storage, out_dir=out_dir,
+                               engine=engine.value, address=address)))
+
+
+@app.command(name='train-fleet',
+             help='Many trainings at once, as processes here or as Ray tasks on a cluster: one '
+                  'model per held-out family (leave one family out, synth3 data) and/or '
+                  'ensemble members (seeds SEED ... SEED + MEMBERS - 1). Models, training '
+                  'states and logs go to --out-dir (on a cluster: a path every worker '
+                  'mounts); a rerun skips finished models and resumes the others, and a task '
+                  'whose Ray worker died resumes from its last training state. '
+                  'OUT_DIR/fleet.json holds every model\'s figures.\n\n'
+                  'Examples:\n\n  landing-zone train-fleet --data data/synth3 --out-dir '
+                  'runs/lofo --lofo\n\n'
+                  '  landing-zone train-fleet --data data/synth3 --out-dir runs/lofo '
+                  '--hold-out obstacle:log --hold-out vegetation:lodged --members 3\n\n'
+                  '  landing-zone train-fleet --data /shared/synth3 --out-dir /shared/lofo '
+                  '--lofo --engine ray --address auto')
+def train_fleet(
+    data: Annotated[list[Path], typer.Option(
+        help='Dataset directory (repeat for more; on a cluster a path every worker reads).')],
+    out_dir: Annotated[Path, typer.Option(help='Where the models go (NAME.safetensors).')],
+    lofo: Annotated[bool, typer.Option(
+        help='One model per train obstacle family and per vegetation family left out.')]
+    = False,
+    hold_out: Annotated[Optional[list[str]], typer.Option(
+        help='AXIS:FAMILY: one model leaving that family out (repeat: one model each).')]
+    = None,
+    everything: Annotated[Optional[bool], typer.Option(
+        '--everything/--no-everything',
+        help='Also a model on every family [default: only without hold-outs].',
+        show_default=False)] = None,
+    members: Annotated[int, typer.Option(help='Models per job, seeds SEED + K.', min=1)] = 1,
+    arch: Annotated[Optional[str], typer.Option(
+        help='Network spec; default the shipped model\'s.', show_default=False)] = None,
+    epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 3,
+    augment_copies: Annotated[int, typer.Option(
+        help='Augmented samples of every scene per epoch.')] = 4,
+    max_samples: Annotated[int, typer.Option(help='Cap on samples per epoch (0: none).')] = 0,
+    cache_voxels: Annotated[int, typer.Option(
+        help='Pre-voxelize this many augmented copies per scene once (0: on the fly).')] = 0,
+    batch_size: Annotated[int, typer.Option(help='Samples per minibatch.')] = 20,
+    lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
+    seed: Annotated[int, typer.Option(help='Seed of the first member.')] = 0,
+    checkpoint_minutes: Annotated[float, typer.Option(
+        help='Save each training\'s state this often within an epoch.')] = 10.0,
+    workers: Annotated[Optional[int], typer.Option(
+        help='Trainings at once (processes, or the CPUs of a local Ray cluster); default one '
+             'per core.', min=1)] = None,
+    threads: Annotated[int, typer.Option(help='Torch threads of each training.', min=1)] = 1,
+    engine: Annotated[Engine, typer.Option(help=_ENGINE_HELP)] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
+) -> None:
+    from landing_zone.engines import check_engine
+    from landing_zone.judging.net import DEFAULT_SPEC
+    from landing_zone.learn.fleet import fleet_jobs, lofo_families, markdown_fleet
+    from landing_zone.learn.fleet import train_fleet as run_fleet
+    from landing_zone.learn.train import TrainConfig
+
+    check_engine(engine.value, address)
+    cfg = TrainConfig(arch=arch or DEFAULT_SPEC, epochs=epochs, augment_copies=augment_copies,
+                      max_samples=max_samples, cache_voxels=cache_voxels,
+                      batch_size=batch_size, lr=lr, seed=seed,
+                      checkpoint_minutes=checkpoint_minutes)
+    holds = lofo_families() if lofo else []
+    holds += [h for h in hold_out or [] if h not in holds]
+    jobs = fleet_jobs(cfg, holds, members=members, everything=everything)
+    doc = run_fleet(data, out_dir, jobs, engine=engine.value, address=address,
+                    workers=workers, threads=threads)
+    print(markdown_fleet(doc), end='')
+    print(f'{len(jobs)} model(s) in {out_dir} in {doc["seconds"]:.0f} s on {doc["engine"]}; '
+          f'figures in {Path(out_dir) / "fleet.json"}')
 
 
 class Split(str, Enum):
@@ -496,6 +597,46 @@ def fit_ood(
           f'{res.seconds:.0f} s')
 
 
+@app.command(name='evaluate-flights',
+             help='Replay recorded flights, each with its ground truth beside it '
+                  '(SITE.labels.json for SITE.mcap, as simulate-flight writes it), and score '
+                  'the final tiles per flight and pooled: AUC, ECE, the share of obstacle '
+                  'tiles given P(safe) >= 0.5 and the share of labelled tiles unjudged. The '
+                  'flights run in parallel, here or on a Ray cluster, with the same '
+                  'figures.\n\n'
+                  'Examples:\n\n  landing-zone evaluate-flights a.mcap b.mcap --json '
+                  'flights.json\n\n'
+                  '  landing-zone evaluate-flights flights/*.mcap --engine ray\n\n'
+                  '  landing-zone evaluate-flights /shared/flights/*.mcap --engine ray '
+                  '--address ray://head:10001 --model /shared/models/m.safetensors')
+def evaluate_flights(
+    bags: Annotated[list[Path], typer.Argument(
+        help='Flight bags (.mcap, .db3 or directory; ROS 1 .bag), each with BAG.labels.json.')],
+    engine: Annotated[Engine, typer.Option(help=_ENGINE_HELP)] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
+    json_path: Annotated[Optional[Path], typer.Option(
+        '--json', help='Write the figures (per flight and pooled) here.')] = None,
+    model: Annotated[Optional[Path], typer.Option(
+        help='Model file; default the shipped one.')] = None,
+    workers: Annotated[Optional[int], typer.Option(
+        help='Processes, or the CPUs of a local Ray cluster; default one per core.', min=1)
+    ] = None,
+    points_topic: Annotated[str, typer.Option(
+        help='PointCloud2 topic (fixed frame).')] = '/lidar/points',
+    pose_topic: Annotated[str, typer.Option(
+        help='PoseStamped topic of the sensor.')] = '/lidar/pose',
+) -> None:
+    from landing_zone.learn.flights import evaluate_flights as run_flights, markdown_flights
+
+    doc = run_flights(bags, engine=engine.value, address=address, workers=workers,
+                      model=model, points_topic=points_topic, pose_topic=pose_topic,
+                      json_path=json_path)
+    print(markdown_flights(doc), end='')
+    print(f'{len(doc["flights"])} flight(s) in {doc["seconds"]:.1f} s on {doc["engine"]} '
+          f'({doc["workers"]} worker(s)): {doc["flights_per_s"]} flights/s'
+          + (f'; wrote {json_path}' if json_path is not None else ''))
+
+
 # --- simulate ---------------------------------------------------------------------------------
 
 @app.command(help='Labelled training/test patches of the paper\'s Table I sweep (synth1: boxes, '
@@ -531,14 +672,23 @@ def simulate(
     points_topic: Annotated[str, typer.Option(
         help='hybrid: PointCloud2 topic.')] = '/lidar/points',
     pose_topic: Annotated[str, typer.Option(help='hybrid: PoseStamped topic.')] = '/lidar/pose',
+    engine: Annotated[Engine, typer.Option(
+        help='Where the shards are simulated (same bytes either way). ' + _ENGINE_HELP)
+    ] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
 ) -> None:
+    from landing_zone.engines import check_engine
     from landing_zone.errors import ConfigError
+
+    check_engine(engine.value, address)
 
     if dataset is DatasetName.hybrid:
         from landing_zone.sim.hybrid import simulate_hybrid
 
         if not from_ and not test_from:
             raise ConfigError('--dataset hybrid needs the flights: --from BAG (repeat for more)')
+        if engine is not Engine.local:
+            raise ConfigError('--dataset hybrid runs on this machine only (--engine local)')
         if scenes is not None or split != 'both':
             raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
                               'flight: not --scenes or --split')
@@ -551,10 +701,12 @@ def simulate(
         if from_ or test_from or region is not None:
             raise ConfigError('--from, --test-from and --region are for --dataset hybrid')
         s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
-                             split=split, progress=not quiet)
+                             split=split, progress=not quiet, engine=engine.value,
+                             address=address)
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
-          f'worker(s), {s["scenes_per_s"]:.1f} scenes/s; {s["bytes"] / 1e6:.1f} MB')
+          f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '
+          f'scenes/s; {s["bytes"] / 1e6:.1f} MB')
 
 
 _KINDS = 'rock,tire,cinder_block,box'

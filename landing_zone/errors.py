@@ -14,6 +14,7 @@ __all__ = [
     'BagError',
     'DatasetError',
     'SimulationError',
+    'EngineError',
 ]
 
 
@@ -47,3 +48,7 @@ class DatasetError(LandingZoneError):
 
 class SimulationError(LandingZoneError, ValueError):
     """Simulation parameters are nonsensical (checked before any work starts)."""
+
+
+class EngineError(LandingZoneError):
+    """Fan-out work cannot run: an unknown engine, Ray missing or unreachable, a dead worker."""

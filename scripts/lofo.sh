@@ -10,6 +10,10 @@
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
+# FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
+# --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
+# as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
+# mounts).
 set -euo pipefail
 work=${1:-runs/lofo}
 lz=${LZ:-.venv/bin/landing-zone}
@@ -51,8 +55,14 @@ for g in family_folds($folds, $fold_seed): print(' '.join(g))")
         lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
     done
 else
+    fleet=(--engine "${ENGINE:-local}")
+    [ -n "${ADDRESS:-}" ] && fleet+=(--address "$ADDRESS")
+    [ -n "${FLEET_WORKERS:-}" ] && fleet+=(--workers "$FLEET_WORKERS")
+    /usr/bin/time -f "lofo: the LOFO models %e s wall, %U s user" "$lz" train-fleet \
+        --data "$train_data" --out-dir "$work" --lofo --epochs "$epochs" \
+        --augment-copies "$copies" --cache-voxels "$cache" --max-samples "$max_samples" \
+        "${fleet[@]}"
     for h in $families $vegetation; do
-        train_one "lofo_${h//:/_}" "$h"
         lofo_models+=(--model "$work/lofo_${h//:/_}.safetensors")
     done
 fi

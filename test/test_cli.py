@@ -10,7 +10,7 @@ def run_cli(*args):
 def test_help_lists_commands():
     out = run_cli('--help')
     assert out.returncode == 0
-    for command in ('bench',):
+    for command in ('bench', 'evaluate-flights', 'train-fleet'):
         assert command in out.stdout
 
 
@@ -20,4 +20,4 @@ def test_unknown_benchmark_is_one_clear_line():
     assert 'Traceback' not in out.stderr
     assert out.stderr.strip().splitlines() == [
         "landing-zone: error: unknown benchmark 'nonsense'; choose from "
-        'integrate, simulate, assess, replay, insert, live, soak']
+        'integrate, simulate, assess, replay, insert, live, soak, engines']

@@ -12,8 +12,9 @@ import platform
 
 from landing_zone.errors import ConfigError
 
-NAMES = ('integrate', 'simulate', 'assess', 'replay', 'insert', 'live', 'soak')
-# What a bare `landing-zone bench` runs: the live ones need minutes and DDS, so only by name.
+NAMES = ('integrate', 'simulate', 'assess', 'replay', 'insert', 'live', 'soak', 'engines')
+# What a bare `landing-zone bench` runs: the live ones need minutes and DDS, and engines a Ray
+# cluster, so only by name.
 DEFAULT = ('integrate', 'simulate', 'assess', 'replay', 'insert')
 
 

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from landing_zone.engines import check_engine, run_tasks
 from landing_zone.errors import SimulationError
 from landing_zone.sim.shards import (FORMAT_VERSION, prepare_output, shard_arrays,
                                      shard_complete, shard_name, write_json, write_npz)
@@ -96,7 +97,8 @@ def _plan_key(meta: dict[str, Any]) -> tuple:
 
 def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = None,
                      workers: int | None = None, seed: int = 0, split: str = 'both',
-                     shard_size: int = 32, progress: bool = True) -> dict[str, Any]:
+                     shard_size: int = 32, progress: bool = True, engine: str = 'local',
+                     address: str | None = None) -> dict[str, Any]:
     """Generate (or finish generating) a dataset directory.
 
     Args:
@@ -112,16 +114,21 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         split: ``train``, ``test`` or ``both``: which scenes to generate.
         shard_size: scenes per shard file.
         progress: show a progress bar (rate, ETA) on stderr.
+        engine: ``local`` (processes here) or ``ray`` (one Ray task per shard; ``workers``
+            CPUs of a local cluster unless ``address`` names one): the same files either way.
+        address: the Ray cluster (:func:`landing_zone.engines.run_tasks`).
 
     Returns:
         Summary: scenes, shards written and skipped, seconds, scenes/s, rays, bytes on disk.
 
     Raises:
         SimulationError: bad arguments (before any work).
+        EngineError: an unknown engine, Ray missing, or a worker that died.
         DatasetError: ``out`` holds a different dataset.
     """
     if dataset != 'synth3':
         get_sweep(dataset)
+    check_engine(engine, address)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
     if workers is not None and (not isinstance(workers, (int, np.integer)) or workers < 1):
@@ -145,12 +152,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         if shard_complete(out / shard['file'], indices):
             done += len(indices)
         else:
-            tasks.append((str(out), dataset, int(seed), k, indices))
+            tasks.append((str(out.resolve()), dataset, int(seed), k, indices))
     workers = min(workers or os.cpu_count() or 1, max(len(tasks), 1))
-    t0 = time.perf_counter()
-    rays = 0
-    pool = None
-    if workers > 1:
+    start_method = None
+    if engine == 'local' and workers > 1:
         import multiprocessing
         import threading
 
@@ -160,23 +165,22 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         # thread and has not started Embree (whose worker threads a child would inherit
         # half-alive): true for the command line, whose progress bar starts after the pool.
         safe = threading.active_count() == 1 and not embree_started()
-        method = ('fork' if safe and 'fork' in multiprocessing.get_all_start_methods()
-                  else 'spawn')
-        pool = multiprocessing.get_context(method).Pool(workers)
+        start_method = ('fork' if safe and 'fork' in multiprocessing.get_all_start_methods()
+                        else 'spawn')
+    t0 = time.perf_counter()
+    rays = 0
+    results = run_tasks(_make_shard, tasks, engine=engine, workers=workers, address=address,
+                        start_method=start_method)
     bar = progress_bar(len(selected), done, progress, f'{dataset} -> {out}')
     try:
-        results = (pool.imap_unordered(_make_shard, tasks) if pool is not None
-                   else map(_make_shard, tasks))
-        for _, n, r, _ in results:
+        for _, (_, n, r, _) in results:
             rays += r
             bar.update(n)
-        if pool is not None:
-            pool.close()
-            pool.join()
     finally:
         bar.close()
-        if pool is not None:
-            pool.terminate()
+        results.close()
+    for stale in (out / 'shards').glob('*.tmp-*'):
+        stale.unlink()  # left by a worker that died mid-shard (its task was run again)
     seconds = time.perf_counter() - t0
     meta['complete'] = True
     write_json(meta_path, meta)
