@@ -292,18 +292,21 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
 
 
 class CountBuffers:
-    """The hit and pass arrays one caller reads a map's counts into, reused while the box keeps
-    its shape: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read.
-    Not thread-safe: one per thread."""
+    """The hit and pass arrays one caller reads a map's counts into, reused from one read to the
+    next: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read. Any box
+    up to the largest asked for so far is a view of the same memory. Not thread-safe: one per
+    thread (or per assessor, whose passes come one at a time)."""
 
     def __init__(self) -> None:
-        self._bufs: tuple[np.ndarray, np.ndarray] | None = None
+        self._flat: tuple[np.ndarray, np.ndarray] | None = None
 
     def get(self, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """Two uint32 arrays of ``shape`` (the same ones as last time if it is unchanged)."""
-        if self._bufs is None or self._bufs[0].shape != shape:
-            self._bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
-        return self._bufs
+        """Two C-contiguous uint32 arrays of ``shape`` (views of the memory of the last call
+        when it is large enough; their contents are left as they were)."""
+        n = int(np.prod(shape))
+        if self._flat is None or self._flat[0].size < n:
+            self._flat = (np.empty(n, np.uint32), np.empty(n, np.uint32))
+        return self._flat[0][:n].reshape(shape), self._flat[1][:n].reshape(shape)
 
 
 def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
