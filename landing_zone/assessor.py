@@ -540,8 +540,9 @@ class Assessor:
 
         try:
             todo, counts = job.todo, job.counts
+            # the cubes of tiles that cannot be valid are not built: no network reads them
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
-                                      todo) if counts is not None else None
+                                      todo, invalid_inputs=False) if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():
                 # the network runs outside the map's lock: integration goes on meanwhile

@@ -144,11 +144,14 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 # --- the compiled kernel -----------------------------------------------------------------------
 
 def _tile_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, tv, pad, quantile, occupied, out, ground_k, nobs, nret):
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, skip_below, out, ground_k, nobs,
+        nret):
     """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
 
     ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
-    has no occupied voxel (its input is then all zeros).
+    has no occupied voxel (its input is then all zeros). ``skip_below`` = (returns, observed
+    voxels): a tile with fewer of either gets an all-zero input instead of its cube (it is not
+    valid, so no network reads it); (0, 0) builds every cube.
     """
     nx, ny, nz = hits.shape
     side = tv + 2 * pad
@@ -191,7 +194,22 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
         # the input's z range that lies inside the box; the rest reads as unobserved
         c0 = min(max(-z0, 0), side)
         c1 = max(min(nz - z0, side), c0)
+        # the observed voxels of the unpadded cube first: they tell whether the input is read
         seen = 0
+        for a in range(pad, pad + tv):
+            xi = x0 - pad + a
+            if xi < 0 or xi >= nx:
+                continue
+            for b in range(pad, pad + tv):
+                yj = y0 - pad + b
+                if yj < 0 or yj >= ny:
+                    continue
+                for c in range(max(c0, pad), min(c1, pad + tv)):
+                    seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
+        nobs[t] = seen
+        if returns < skip_below[0] or seen < skip_below[1]:
+            out[t, 0] = 0.0
+            continue
         for a in range(side):
             xi = x0 - pad + a
             for b in range(side):
@@ -207,10 +225,6 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                     h = np.float32(hits[xi, yj, z0 + c])
                     p = np.float32(passes[xi, yj, z0 + c])
                     row[c] = (h - p) / (h + p + np.float32(2.0))
-                if pad <= a < pad + tv and pad <= b < pad + tv:
-                    for c in range(max(c0, pad), min(c1, pad + tv)):
-                        seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
-        nobs[t] = seen
 
 
 # Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
@@ -233,7 +247,8 @@ def _as_tiles(tiles: ArrayLike) -> np.ndarray:
 
 def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
                       voxel_size: float, config: TileConfig | None = None,
-                      tiles: np.ndarray | None = None) -> TileBatch:
+                      tiles: np.ndarray | None = None,
+                      invalid_inputs: bool = True) -> TileBatch:
     """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
 
     Args:
@@ -245,6 +260,10 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
         config: tiling parameters; default :class:`TileConfig()`.
         tiles: (T, 2) global tile indices to extract; default every tile whose footprint lies
             wholly inside the box. Voxels outside the box read as unobserved.
+        invalid_inputs: build the input cube of tiles that are not valid too (training reads
+            them); False leaves those with too few returns or observed voxels all zeros,
+            which saves a map's assessment the cubes no network reads. Everything else
+            (ground, observed fraction, returns, validity) is the same either way.
 
     Returns:
         A :class:`TileBatch` of the tiles in the order given (x then y by default).
@@ -275,9 +294,15 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
     if n:
         # Counts are non-negative; uint32 keeps the kernel to one compiled signature.
         kernel = _tile_kernel_serial if n <= _SERIAL_TILES else _tile_kernel_parallel
+        skip = np.zeros(2, np.int64)
+        if not invalid_inputs:
+            # surely not valid: fewer returns, or observed voxels a whole voxel short of the
+            # fraction (the float32 fraction below cannot round across that)
+            skip[0] = int(cfg.min_returns)
+            skip[1] = max(int(math.ceil(cfg.min_observed_fraction * tv ** 3)) - 1, 0)
         kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
                lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
-               float(cfg.occupied_density), inputs, ground_k, nobs, nret)
+               float(cfg.occupied_density), skip, inputs, ground_k, nobs, nret)
     has_ground = ground_k > -(2 ** 62)
     gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
     ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)
