@@ -136,6 +136,8 @@ def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
         'realtime_factors': [round(r.realtime_factor, 2) for r in runs],
         'realtime_factors_passes_in_turn': [round(r.realtime_factor, 2) for r in in_turn],
         'loop_seconds': round(t['loop'], 3),
+        'loop_cpu_seconds': round(t['cpu'], 3),
+        'loop_cpu_seconds_min': round(min(r.timings['cpu'] for r in runs + in_turn), 3),
         'seconds_by_stage': {k: round(t[k], 3)
                              for k in ('read', 'ingest', 'assess', 'assess_wait', 'write')},
         'assessments': best.assessments,
@@ -154,6 +156,9 @@ def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
           f'{t["ingest"]:.2f}, assess {t["assess"]:.2f} ({best.assessments} passes on their '
           f'own thread; the loop waited {t["assess_wait"]:.2f} for them), write '
           f'{t["write"]:.2f} |')
+    print(f'| CPU seconds of the replay loop, all threads (least of every run) | '
+          f'{out["loop_cpu_seconds_min"]:.2f} s: the work, which the machine\'s other jobs '
+          'do not change as they change the wall time |')
     print(f'| decode + integrate rate | {out["returns_per_second_ingest"]:,} returns/s |')
     la = out['latency']
     if la['latency_median_s'] is not None:
