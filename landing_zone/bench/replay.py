@@ -10,7 +10,9 @@ the default architecture stands in (inference costs the same; the figures say wh
    ``assessment_period`` on a thread of its own while the next clouds are integrated, writing
    the output bag), in follow mode as the node runs, with its breakdown by stage.
    ``batches`` sets the repeats (one per ten batches, 1 to 3; the best is reported, the
-   machine being shared).
+   machine being shared). Beside the wall time, the CPU seconds of the loop (every thread of
+   the process): the work itself, which other jobs on a shared machine stretch in wall time
+   but hardly change; on two idle cores the loop cannot take less than half of it.
 2. **Cloud-to-grid latency** of the node's arrangement, in process: one thread feeds the clouds
    at their recorded rate into a :class:`~landing_zone.frontends.stream.Stream` (decoding and
    integrating, as the node's subscription callback does), another ticks every 20 ms as the
