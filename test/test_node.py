@@ -113,7 +113,10 @@ class Listener:
         for topic, cls, qos in [('/assessor/safety_grid', OccupancyGrid, latched),
                                 ('/assessor/safety_cloud', PointCloud2, latched),
                                 ('/assessor/landing_sites', PoseArray, latched),
-                                ('/diagnostics', DiagnosticArray, 10)]:
+                                # every message kept until the listener spins again: it
+                                # does not spin while a publisher process runs (play), and the
+                                # WARN of a burst must still be there after it
+                                ('/diagnostics', DiagnosticArray, 1000)]:
             self.node.create_subscription(cls, topic, self._keeper(topic), qos)
 
     def _keeper(self, topic):
