@@ -406,6 +406,8 @@ class Assessor:
         self._state_lock = threading.Lock()  # the tile results
         self._assess_lock = threading.Lock()  # one assessment pass at a time
         self._invalidated = False  # every tile to be judged again at the next pass
+        from landing_zone.judging.tiles import CountBuffers
+        self._count_buffers = CountBuffers()  # what each pass copies the counts into
         self.map: DensityMap = DensityMap(cfg.map, tile_vox=self.tile_vox)
         self.stats: IntegrationStats = IntegrationStats()
         self.clouds = 0
@@ -570,7 +572,11 @@ class Assessor:
         box_hi = np.concatenate([(tiles.max(axis=0) + 1) * self.tile_vox + pad, hi[2:]])
         box_lo = np.clip(box_lo, lo, hi)
         box_hi = np.clip(box_hi, box_lo, hi)
-        hits, passes = self.map.counts(box_lo, box_hi - box_lo)
+        sx, sy, sz = (int(v) for v in box_hi - box_lo)
+        # into the same memory every pass (passes come one at a time: the last one's copy is
+        # no longer read), so a pass does not pay the page faults of 100 MB of fresh memory
+        hits, passes = self.map.counts(box_lo, box_hi - box_lo,
+                                       out=self._count_buffers.get((sx, sy, sz)))
         return hits, passes, box_lo
 
     def assess(self) -> Assessment:
@@ -623,8 +629,10 @@ class Assessor:
                                 self.config.tiles.occupied_density,
                                 self.config.landing_sites.clutter_height) \
                 if counts is not None else None
+            # the cubes of tiles that cannot be valid are not built: no network reads them
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
-                                      todo, ground) if counts is not None else None
+                                      todo, ground, invalid_inputs=False) \
+                if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             ood = np.full(len(todo), np.nan, np.float32)
             if batch is not None and batch.valid.any():

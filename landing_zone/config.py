@@ -353,9 +353,11 @@ class LiveConfig:
     # clouds that may wait for the integration thread: 1 s at 20 Hz, room for the clouds that
     # come while an assessment pass has the CPU (10 overflowed now and then at 0.3 M returns/s
     # on a busy 2-core machine)
+    # (a cloud of fewer than 1000 returns counts as its share of one, at least 1/20: a flood
+    # of tiny or malformed clouds cannot push the real ones out; frontends.ingest)
     receive_queue: int = param(
-        20, 'Clouds that may wait for integration; more push out the oldest (overload)', '',
-        (1, 10000), read_only=True)
+        20, 'Clouds that may wait for integration, small ones by their share of 1000 returns; '
+        'more push out the oldest (overload)', '', (1, 10000), read_only=True)
     receive_queue_mb: float = param(64.0, '... and at most this many MB of them', 'MB',
                                     (1.0, 100000.0), read_only=True)
     idle_flush: float = param(

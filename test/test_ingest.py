@@ -11,7 +11,8 @@ from landing_zone.assessor import Assessor
 from landing_zone.io.bags import RawBag
 from landing_zone.errors import ConfigError
 from landing_zone.config import LiveConfig
-from landing_zone.frontends.ingest import LivePipeline, ReceiveQueue, SequenceGaps, warm_up
+from landing_zone.frontends.ingest import (PLACE_RETURNS, LivePipeline, ReceiveQueue,
+                                           SequenceGaps, warm_up)
 from landing_zone.frontends.replay import replay
 from landing_zone.config import StreamConfig
 from landing_zone.frontends.stream import Stream
@@ -50,9 +51,9 @@ def test_sequence_gaps_are_counted_per_publisher():
 def test_queue_keeps_the_newest_clouds_within_its_bounds():
     q = ReceiveQueue(max_clouds=3, max_bytes=1000, max_poses=2)
     for k in range(5):
-        q.put('cloud', k, arrival=float(k), nbytes=100, points=10)
+        q.put('cloud', k, arrival=float(k), nbytes=100, points=PLACE_RETURNS)
         q.put('pose', f'p{k}', arrival=float(k))
-    assert q.clouds == 3 and q.dropped_clouds == 2 and q.dropped_points == 20
+    assert q.clouds == 3 and q.dropped_clouds == 2 and q.dropped_points == 2 * PLACE_RETURNS
     assert q.dropped_poses == 3 and q.peak_clouds == 3
     # arrival order is kept among what is left; the oldest went first
     assert [e.payload for e in iter(lambda: q.get(0.0), None)] == [2, 3, 'p3', 4, 'p4']
@@ -61,6 +62,25 @@ def test_queue_keeps_the_newest_clouds_within_its_bounds():
     q.put('cloud', 'b', 0.0, nbytes=600)
     assert q.clouds == 1 and q.get(0.0).payload == 'b'
     assert q.get(0.01) is None
+
+
+def test_a_flood_of_tiny_clouds_does_not_push_out_the_real_ones():
+    """Malformed clouds declare a few hundred returns or none: each takes its share of a place
+    (at least 1/20), so 20 places hold the real clouds and the flood beside them; when real
+    clouds do overflow the places, the oldest entries go first, tiny or not."""
+    q = ReceiveQueue(max_clouds=20, max_bytes=10 ** 9)
+    q.put('cloud', 'real0', 0.0, nbytes=160_000, points=10_000)
+    for k in range(100):  # 1 s of 100 Hz malformed clouds: 200 returns declared, or none
+        q.put('cloud', f'bad{k}', 0.0, nbytes=2_400, points=200 if k % 5 else 0)
+    q.put('cloud', 'real1', 0.0, nbytes=160_000, points=10_000)
+    # 2 places + 80 x 0.2 + 20 x 0.05 = 19 places
+    assert q.dropped_clouds == 0 and q.clouds == 102
+    for k in range(3):
+        q.put('cloud', f'real{k + 2}', 0.0, nbytes=160_000, points=10_000)
+    # past 20 places the oldest entries make room: the first real cloud, then seven tiny ones
+    assert q.dropped_clouds == 1 + 7 and q.dropped_points == 10_000 + 5 * 200
+    left = [e.payload for e in iter(lambda: q.get(0.0), None)]
+    assert left[0] == 'bad7' and left[-4:] == ['real1', 'real2', 'real3', 'real4']
 
 
 def test_points_of_a_serialized_cloud_are_read_from_its_bytes(flight):

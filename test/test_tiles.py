@@ -204,6 +204,35 @@ def test_thin_observation_or_few_returns_make_a_tile_unknown():
     assert tiles_from_counts(h2, p2, (0, 0, 0), VS).valid[0]
 
 
+def test_invalid_inputs_false_skips_only_cubes_no_network_reads(rng):
+    """The assessor's tiler leaves the cubes of tiles that cannot be valid all zeros; every
+    other field, and every valid tile's cube, is what the full build gives (at the boundary
+    of ``min_observed_fraction`` too)."""
+    heights = rng.integers(8, 13, (60, 60))
+    h, p = heightfield_grid(heights)
+    p[20:40, :20] = 0  # tile (1, 0): only its surface observed, exactly 1/20 of the cube
+    p[40:, :20] = 0
+    h[40, 0, :] = 0  # tile (2, 0): one column short of it
+    h[:20, 40:] = np.minimum(h[:20, 40:], 1)
+    h[:20, 40:][:, 1:] = 0
+    h[10:20, 40] = 0  # tile (0, 2): 10 returns, too few
+    h[40:, 40:] = 0
+    p[40:, 40:] = 0  # tile (2, 2): nothing observed
+    cfg = TileConfig(min_observed_fraction=1 / TV)
+    full = tiles_from_counts(h, p, (0, 0, 0), VS, cfg)
+    lean = tiles_from_counts(h, p, (0, 0, 0), VS, cfg, invalid_inputs=False)
+    for name in ('index', 'ground_z', 'observed_fraction', 'n_returns', 'valid', 'cube_lo'):
+        np.testing.assert_array_equal(getattr(lean, name), getattr(full, name))
+    np.testing.assert_array_equal(lean.inputs[full.valid], full.inputs[full.valid])
+    assert full.valid.tolist().count(False) >= 3 and full.valid[full.index.tolist().index([1, 0])]
+    skipped = [t for t in range(len(full)) if not full.valid[t]
+               and np.any(full.inputs[t] != 0) and np.all(lean.inputs[t] == 0)]
+    # the few-returns tile was not built; the one a column short of the fraction is within the
+    # margin the skip keeps, so it was (and is still not valid)
+    order = full.index.tolist()
+    assert skipped == [order.index([0, 2])] and not full.valid[order.index([2, 0])]
+
+
 def test_requested_tiles_outside_the_box_are_unknown():
     h, p = heightfield_grid(np.full((20, 20), 10))
     b = tiles_from_counts(h, p, (0, 0, 0), VS, tiles=np.array([[0, 0], [5, -3]]))

@@ -15,7 +15,9 @@ The ``assessor`` node (and anything else that receives clouds as they come) driv
   when the input went quiet; a pass takes in everything integrated meanwhile, so passes never
   queue up.
 * **Overload** (input faster than integration): the queue holds at most ``receive_queue`` clouds
-  and ``receive_queue_mb`` of them; a cloud that finds it full pushes out the *oldest* queued
+  (a cloud of fewer than 1000 returns counts as its share of one, at least 1/20, so tiny or
+  malformed clouds cannot crowd out real ones) and ``receive_queue_mb`` of them; a cloud that
+  finds it full pushes out the *oldest* queued
   cloud (newest data wins, latency and memory stay bounded), counted as ``overload``. Nothing
   else changes, so when the input slows down the queue drains and the drops stop by themselves.
 * **Every cloud is accounted for**: ``clouds integrated`` plus the ``dropped clouds: REASON``
@@ -116,6 +118,21 @@ class _Entry:
     points: int = 0  # declared points of a cloud (0 when unknown before decoding)
 
 
+# A cloud of PLACE_RETURNS declared returns or more takes a whole place of the queue's
+# ``max_clouds``; a smaller one the share of a place its returns are, at least
+# MIN_PLACE_RETURNS / PLACE_RETURNS (a cloud whose size is unknown, bytes that are no cloud):
+# integrating it costs about that share, and so a flood of tiny or malformed clouds (a few
+# hundred returns declared, or none) cannot push the clouds that carry the data out of the queue.
+# (test_node: 100 malformed clouds/s beside a 20 Hz flight pushed good clouds out, under load.)
+PLACE_RETURNS = 1000
+MIN_PLACE_RETURNS = 50
+
+
+def _place_share(points: int) -> int:
+    """A cloud's share of a queue place, in returns (PLACE_RETURNS: one whole place)."""
+    return min(max(int(points), MIN_PLACE_RETURNS), PLACE_RETURNS)
+
+
 class ReceiveQueue:
     """Clouds and poses in arrival order, bounded; the newest cloud always gets in.
 
@@ -123,7 +140,9 @@ class ReceiveQueue:
     they are tiny, and bounded separately (``max_poses``, oldest dropped first).
 
     Args:
-        max_clouds: clouds held at most.
+        max_clouds: places for clouds: a cloud of at least :data:`PLACE_RETURNS` declared
+            returns takes one, a smaller one its share of one (at least 1/20), so the queue
+            holds ``max_clouds`` real clouds however many tiny ones come beside them.
         max_bytes: bytes of clouds held at most (a cloud larger than this alone still gets in,
             alone).
         max_poses: poses held at most.
@@ -140,6 +159,7 @@ class ReceiveQueue:
         self._items: collections.deque[_Entry] = collections.deque()
         self._cond = threading.Condition(threading.Lock())
         self._clouds = 0
+        self._share = 0  # places taken, in returns (see _place_share)
         self._poses = 0
         self._bytes = 0
         self.dropped_clouds = 0
@@ -154,11 +174,14 @@ class ReceiveQueue:
         pushed = 0
         with self._cond:
             if kind == 'cloud':
-                while self._clouds and (self._clouds >= self.max_clouds
-                                        or self._bytes + entry.nbytes > self.max_bytes):
+                share = _place_share(entry.points)
+                while self._clouds and (
+                        self._share + share > self.max_clouds * PLACE_RETURNS
+                        or self._bytes + entry.nbytes > self.max_bytes):
                     self._remove_oldest('cloud')
                     pushed += 1
                 self._clouds += 1
+                self._share += share
                 self._bytes += entry.nbytes
                 self.peak_clouds = max(self.peak_clouds, self._clouds)
             else:
@@ -176,6 +199,7 @@ class ReceiveQueue:
                 del self._items[i]
                 if kind == 'cloud':
                     self._clouds -= 1
+                    self._share -= _place_share(e.points)
                     self._bytes -= e.nbytes
                     self.dropped_clouds += 1
                     self.dropped_points += e.points
@@ -194,6 +218,7 @@ class ReceiveQueue:
             e = self._items.popleft()
             if e.kind == 'cloud':
                 self._clouds -= 1
+                self._share -= _place_share(e.points)
                 self._bytes -= e.nbytes
             else:
                 self._poses -= 1

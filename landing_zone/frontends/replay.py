@@ -69,7 +69,8 @@ class ReplayResult:
             (tiles and network, on a thread of its own, overlapped with the rest),
             ``assess_wait`` (what of it the loop waited for), ``write`` (building and writing
             the output messages), ``loop`` (read + ingest + assess_wait + write), ``report``
-            (JSON and PNG).
+            (JSON and PNG); ``cpu``: CPU seconds of the whole process during the loop, every
+            thread (the work, whatever else shares the machine).
         ood_reference: the OOD reference file judged with (None: the signal was off).
     """
 
@@ -200,6 +201,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     if writer is not None:
         writer.open()
     t_loop = time.perf_counter()
+    cpu_loop = time.process_time()
     setup = t_loop - t_start
     passes = _Passes(stream, overlap)
     try:
@@ -235,6 +237,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     finally:
         assessor.close()  # its threads; the results stay readable
     loop = time.perf_counter() - t_loop
+    cpu = time.process_time() - cpu_loop
     result = assessor.last
     assert result is not None
     first_ns, last_cloud_ns = stream.stamp_span
@@ -246,7 +249,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     timings = {'setup': setup,
                'read': max(loop - t_ingest - passes.waited - outputs.seconds, 0.0),
                'ingest': t_ingest, 'assess': assess_s, 'assess_wait': passes.waited,
-               'write': outputs.seconds, 'loop': loop}
+               'write': outputs.seconds, 'loop': loop, 'cpu': cpu}
     top = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
     if len(top) > TOP_VIEW_MAX:
         top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]

@@ -383,6 +383,10 @@ class Stream:
             'clouds integrated': str(self.clouds),
             'returns integrated': str(self.points),
             'clouds waiting for a pose': str(self.pending),
+            'poses accepted': str(self.poses),
+            # the stamp the last grid carries once every cloud is assessed (header.stamp, ns)
+            'newest cloud integrated [stamp ns]': str(self.stamp_span[1])
+            if self.stamp_span[1] is not None else 'n/a',
             'assessments': str(self.assessments),
             'assessment time, last [s]': f'{secs[-1]:.3f}' if secs else 'n/a',
             'cloud-to-grid latency, last [s]': f'{lat[-1]:.3f}' if lat else 'n/a',

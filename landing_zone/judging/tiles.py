@@ -145,14 +145,17 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 # --- the compiled kernel -----------------------------------------------------------------------
 
 def _tile_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, out, ground_k, nobs, nret):
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, skip_below, out, ground_k,
+        nobs, nret):
     """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
 
     ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
     has no occupied voxel (its input is then all zeros). Where ``plane[t]`` is finite (height of
     the ground plane at the tile centre in box voxels, gradient x, gradient y), the cube is
     aligned to it: the ground voxel is the plane's at the centre and every column of the cube
-    is shifted by the plane's rise there, in whole voxels (a shear).
+    is shifted by the plane's rise there, in whole voxels (a shear). ``skip_below`` = (returns,
+    observed voxels): a tile with fewer of either gets an all-zero input instead of its cube (it
+    is not valid, so no network reads it); (0, 0) builds every cube.
     """
     nx, ny, nz = hits.shape
     side = tv + 2 * pad
@@ -196,7 +199,27 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
         ground_k[t] = kq
         z0t = kq - half - pad
         centre = pad + 0.5 * tv - 0.5
+        # the observed voxels of the unpadded cube first: they tell whether the input is read
         seen = 0
+        for a in range(pad, pad + tv):
+            xi = x0 - pad + a
+            if xi < 0 or xi >= nx:
+                continue
+            for b in range(pad, pad + tv):
+                yj = y0 - pad + b
+                if yj < 0 or yj >= ny:
+                    continue
+                z0 = z0t
+                if aligned:
+                    z0 += int(np.round((a - centre) * plane[t, 1] + (b - centre) * plane[t, 2]))
+                c0 = min(max(-z0, 0), side)
+                c1 = max(min(nz - z0, side), c0)
+                for c in range(max(c0, pad), min(c1, pad + tv)):
+                    seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
+        nobs[t] = seen
+        if returns < skip_below[0] or seen < skip_below[1]:
+            out[t, 0] = 0.0
+            continue
         for a in range(side):
             xi = x0 - pad + a
             for b in range(side):
@@ -218,10 +241,6 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                     h = np.float32(hits[xi, yj, z0 + c])
                     p = np.float32(passes[xi, yj, z0 + c])
                     row[c] = (h - p) / (h + p + np.float32(2.0))
-                if pad <= a < pad + tv and pad <= b < pad + tv:
-                    for c in range(max(c0, pad), min(c1, pad + tv)):
-                        seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
-        nobs[t] = seen
 
 
 # Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
@@ -245,7 +264,8 @@ def _as_tiles(tiles: ArrayLike) -> np.ndarray:
 def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
                       voxel_size: float, config: TileConfig | None = None,
                       tiles: np.ndarray | None = None,
-                      ground: TileGround | None = None) -> TileBatch:
+                      ground: TileGround | None = None,
+                      invalid_inputs: bool = True) -> TileBatch:
     """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
 
     Args:
@@ -260,6 +280,10 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
         ground: the tiles' ground planes (:func:`~landing_zone.judging.ground.fit_ground`);
             with ``config.align_to_ground`` the cube of a tile with a plane is aligned to it
             (ground voxel the plane's at the centre, columns sheared along its rise).
+        invalid_inputs: build the input cube of tiles that are not valid too (training reads
+            them); False leaves those with too few returns or observed voxels all zeros,
+            which saves a map's assessment the cubes no network reads. Everything else
+            (ground, observed fraction, returns, validity) is the same either way.
 
     Returns:
         A :class:`TileBatch` of the tiles in the order given (x then y by default).
@@ -296,9 +320,15 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
     if n:
         # Counts are non-negative; uint32 keeps the kernel to one compiled signature.
         kernel = _tile_kernel_serial if n <= _SERIAL_TILES else _tile_kernel_parallel
+        skip = np.zeros(2, np.int64)
+        if not invalid_inputs:
+            # surely not valid: fewer returns, or observed voxels a whole voxel short of the
+            # fraction (the float32 fraction below cannot round across that)
+            skip[0] = int(cfg.min_returns)
+            skip[1] = max(int(math.ceil(cfg.min_observed_fraction * tv ** 3)) - 1, 0)
         kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
                lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
-               float(cfg.occupied_density), plane, inputs, ground_k, nobs, nret)
+               float(cfg.occupied_density), plane, skip, inputs, ground_k, nobs, nret)
     has_ground = ground_k > -(2 ** 62)
     gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
     ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)
@@ -313,18 +343,21 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
 
 
 class CountBuffers:
-    """The hit and pass arrays one caller reads a map's counts into, reused while the box keeps
-    its shape: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read.
-    Not thread-safe: one per thread."""
+    """The hit and pass arrays one caller reads a map's counts into, reused from one read to the
+    next: a full map is 2 x 51 MB, and fresh memory costs its page faults on every read. Any box
+    up to the largest asked for so far is a view of the same memory. Not thread-safe: one per
+    thread (or per assessor, whose passes come one at a time)."""
 
     def __init__(self) -> None:
-        self._bufs: tuple[np.ndarray, np.ndarray] | None = None
+        self._flat: tuple[np.ndarray, np.ndarray] | None = None
 
     def get(self, shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-        """Two uint32 arrays of ``shape`` (the same ones as last time if it is unchanged)."""
-        if self._bufs is None or self._bufs[0].shape != shape:
-            self._bufs = (np.empty(shape, np.uint32), np.empty(shape, np.uint32))
-        return self._bufs
+        """Two C-contiguous uint32 arrays of ``shape`` (views of the memory of the last call
+        when it is large enough; their contents are left as they were)."""
+        n = int(np.prod(shape))
+        if self._flat is None or self._flat[0].size < n:
+            self._flat = (np.empty(n, np.uint32), np.empty(n, np.uint32))
+        return self._flat[0][:n].reshape(shape), self._flat[1][:n].reshape(shape)
 
 
 def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,

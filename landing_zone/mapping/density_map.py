@@ -76,10 +76,21 @@ def _window_tables(dims, wlo, wn, qlo, qn):  # type: ignore[no-untyped-def]
     return r0, r1, offy, offz, sx_stride
 
 
+# what _read_hot writes
+_READ_COUNTS = 0  # the hot bytes of hits and passes (out_a, out_b)
+_READ_DENSITY = 1  # (h + 1) / (h + p + 2) as float32 (out_a)
+_READ_OBSERVED = 2  # h + p > 0 (out_a)
+
+
 @nb.njit(cache=True, nogil=True)
-def _gather_hot(  # type: ignore[no-untyped-def]
-        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out_h, out_p):
-    """Copy the hot bytes of the requested box (global indices) into logical order."""
+def _read_hot(  # type: ignore[no-untyped-def]
+        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, what, out_a, out_b):
+    """Read the hot bytes of the requested box (global indices) in logical order: the counts
+    into ``out_a`` / ``out_b``, or the density or observed flags computed from them into
+    ``out_a`` (valid while no cold block exists). Chunk ``chunk`` of ``nchunks`` along x.
+
+    One walk over the storage layout for the three reads; ``what`` is constant per call, so
+    the compiler takes the branch out of the inner loop."""
     r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
     z0 = r0[2]
     z1 = r1[2]
@@ -91,8 +102,16 @@ def _gather_hot(  # type: ignore[no-untyped-def]
             base = offx + offy[j]
             for k in range(z0, z1):
                 idx = base + offz[k]
-                out_h[i, j, k] = hits[idx]
-                out_p[i, j, k] = passes[idx]
+                h = hits[idx]
+                p = passes[idx]
+                if what == _READ_COUNTS:
+                    out_a[i, j, k] = h
+                    out_b[i, j, k] = p
+                elif what == _READ_DENSITY:
+                    hf = np.float64(h)
+                    out_a[i, j, k] = np.float32((hf + 1.0) / (hf + np.float64(p) + 2.0))
+                else:
+                    out_a[i, j, k] = (h | p) != 0
 
 
 @nb.njit(cache=True)
@@ -129,43 +148,6 @@ def _gather_cold(  # type: ignore[no-untyped-def]
             if 0 <= i < qn[0] and 0 <= j < qn[1] and 0 <= k < qn[2]:
                 out_h[i, j, k] += np.uint32(hi_h) << 8
                 out_p[i, j, k] += np.uint32(hi_p) << 8
-
-
-@nb.njit(cache=True, nogil=True)
-def _density_hot(  # type: ignore[no-untyped-def]
-        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
-    """Density straight from the hot bytes (valid while no cold block exists)."""
-    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
-    z0 = r0[2]
-    z1 = r1[2]
-    span = r1[0] - r0[0]
-    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
-        s = (qlo[0] + i) % dims[0]
-        offx = (s >> 2) * sx_stride + (s & 3) * 16
-        for j in range(r0[1], r1[1]):
-            base = offx + offy[j]
-            for k in range(z0, z1):
-                idx = base + offz[k]
-                h = np.float64(hits[idx])
-                out[i, j, k] = np.float32((h + 1.0) / (h + np.float64(passes[idx]) + 2.0))
-
-
-@nb.njit(cache=True, nogil=True)
-def _observed_hot(  # type: ignore[no-untyped-def]
-        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, out):
-    """Observed flags straight from the hot bytes (valid while no cold block exists)."""
-    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
-    z0 = r0[2]
-    z1 = r1[2]
-    span = r1[0] - r0[0]
-    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
-        s = (qlo[0] + i) % dims[0]
-        offx = (s >> 2) * sx_stride + (s & 3) * 16
-        for j in range(r0[1], r1[1]):
-            base = offx + offy[j]
-            for k in range(z0, z1):
-                idx = base + offz[k]
-                out[i, j, k] = (hits[idx] | passes[idx]) != 0
 
 
 def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -> None:
@@ -632,12 +614,14 @@ class DensityMap:
                     raise ConfigError(f'out must be two writeable C-contiguous uint32 arrays of '
                                       f'shape {tuple(int(v) for v in q_n)}, got {a.dtype} '
                                       f'{a.shape}')
-            out_h.fill(0)
-            out_p.fill(0)
+            if np.any(q_lo < self.lo) or np.any(q_lo + q_n > self.hi):
+                # only voxels outside the window are left unwritten by the read below
+                out_h.fill(0)
+                out_p.fill(0)
         if out_h.size:
             chunks = self._read_chunks(out_h.size)
-            run_parts(_gather_hot, chunks, (chunks, self._hits, self._passes, self._dims,
-                                            self.lo, self._n, q_lo, q_n, out_h, out_p),
+            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                          self._n, q_lo, q_n, _READ_COUNTS, out_h, out_p),
                       self._runner)
             if self._used.any():
                 _gather_cold(self._cdir, self._pool, self._row_part, self._dims, self.lo,
@@ -659,8 +643,9 @@ class DensityMap:
         out = np.full(tuple(q_n), 0.5, np.float32)
         if out.size:
             chunks = self._read_chunks(out.size)
-            run_parts(_density_hot, chunks, (chunks, self._hits, self._passes, self._dims,
-                                             self.lo, self._n, q_lo, q_n, out), self._runner)
+            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                          self._n, q_lo, q_n, _READ_DENSITY, out, out),
+                      self._runner)
         return out
 
     def observed(self, lo: ArrayLike | None = None,
@@ -674,8 +659,9 @@ class DensityMap:
         out = np.zeros(tuple(q_n), bool)
         if out.size:
             chunks = self._read_chunks(out.size)
-            run_parts(_observed_hot, chunks, (chunks, self._hits, self._passes, self._dims,
-                                              self.lo, self._n, q_lo, q_n, out), self._runner)
+            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                          self._n, q_lo, q_n, _READ_OBSERVED, out, out),
+                      self._runner)
         return out
 
     def close(self) -> None:

@@ -427,6 +427,9 @@ def _trace_part(  # type: ignore[no-untyped-def]
             # next event: the smallest (t, class); a strict minimum is the common case and
             # each axis gets its own block so that one unpredictable branch decides it. An
             # axis at its last cell is either done (t = inf, never chosen) or about to leave.
+            # (The blocks are alike on purpose. Measured on the demo flight's clouds: one step
+            # indexed by axis was 1.36x slower, the state leaving the registers; the count
+            # update hoisted above the branch, with a count of axes still to go, 1.06-1.10x.)
             if tx < ty and tx < tz:
                 v = passes[idx]
                 if v != 255:
