@@ -188,8 +188,9 @@ def test_tiles_unlike_the_reference_become_unknown_and_typical_ones_do_not(model
     assert len(reasons) == int(safe.sum())
     assert all(e['reason'].startswith('unlike the training data: feature distance')
                and e['p_net'] >= 0.5 for e in reasons)
-    assert not any(set(t) - {'x', 'y', 'ground_z', 'p_safe', 'confidence'}
-                   for t in report['tiles'])  # the tiles keep the contract's keys
+    # the tiles keep the contract's keys (and the ground plane's figures beside them)
+    assert not any(set(t) - {'x', 'y', 'ground_z', 'p_safe', 'confidence', 'slope_deg',
+                             'roughness', 'clearance'} for t in report['tiles'])
     a.close()
     # the same map and reference: the same bytes
     a2, r2 = assess(model)
