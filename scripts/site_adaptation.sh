@@ -29,10 +29,15 @@ done
 "$lz" train --init "$shipped" --data "$work/hybrid" --data "$work/synth3_some" \
     --out "$work/site.safetensors" --lr 0.001 --epochs 4 --augment-copies 6 \
     --cache-voxels 3 --workers 2 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote)'
-"$lz" evaluate --data "$work/hybrid" --model "$shipped" --model "$work/site.safetensors"
+# train --init refits the temperature on in-distribution validation scenes and drops the
+# shipped model's out-of-family calibration; site_cal carries it over (weights unchanged)
+"$py" scripts/lofo_calibrated.py "$shipped" "$work/site.safetensors" --suffix _cal
+"$lz" evaluate --data "$work/hybrid" --model "$shipped" --model "$work/site.safetensors" \
+    --model "$work/site_cal.safetensors"
 if [ -d "$test_data" ]; then
     "$lz" evaluate --data "$test_data" --by-family --model "$shipped" \
-        --model "$work/site.safetensors" --workers 2 --json "$work/families.json" \
+        --model "$work/site.safetensors" --model "$work/site_cal.safetensors" --workers 2 \
+        --json "$work/families.json" \
         > "$work/families.md"
     "$py" - "$work/families.json" <<'PY'
 import json, sys
@@ -42,11 +47,13 @@ for name, per in rep.items():
     obs = [per['obstacle'][f] for f in TEST_FAMILIES if f in per['obstacle']]
     n = sum(f['n_unsafe'] for f in obs)
     passed = sum(f['unsafe_ge_0.5'] * f['n_unsafe'] for f in obs)
+    sure = sum(f['unsafe_ge_0.9'] * f['n_unsafe'] for f in obs)
     print(f'{name}: obstacle tiles of the test families ({", ".join(TEST_FAMILIES)}) at '
-          f'P(safe) >= 0.5: {passed:.0f} of {n} ({100 * passed / max(n, 1):.1f}%)')
+          f'P(safe) >= 0.5: {passed:.0f} of {n} ({100 * passed / max(n, 1):.1f}%), '
+          f'>= 0.9: {sure:.0f}')
 PY
 fi
-for m in "$shipped" "$work/site.safetensors"; do
+for m in "$shipped" "$work/site.safetensors" "$work/site_cal.safetensors"; do
     name=$(basename "$m" .safetensors)
     "$lz" replay "$work/site_13.mcap" --out "$work/assessed_$name.mcap" \
         --report "$work/report_$name.json" --center 0 0 --model "$m" > /dev/null
