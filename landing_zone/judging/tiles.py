@@ -144,6 +144,18 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 
 # --- the compiled kernel -----------------------------------------------------------------------
 
+@nb.njit(cache=True, nogil=True, inline='always')
+def _column_z(z0t, plane, t, a, b, centre, side, nz):  # type: ignore[no-untyped-def]
+    """Box z index of cube column (a, b)'s first voxel (sheared along ``plane[t]`` where it is
+    finite) and the range [c0, c1) of the column that lies inside the box; the rest reads as
+    unobserved."""
+    z0 = z0t
+    if math.isfinite(plane[t, 0]):
+        z0 += int(np.round((a - centre) * plane[t, 1] + (b - centre) * plane[t, 2]))
+    c0 = min(max(-z0, 0), side)
+    return z0, c0, max(min(nz - z0, side), c0)
+
+
 def _tile_kernel(  # type: ignore[no-untyped-def]
         hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, skip_below, out, ground_k,
         nobs, nret):
@@ -193,8 +205,7 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
             continue
         mins = np.sort(colmin[:n])
         kq = mins[int(math.floor(quantile * (n - 1)))]
-        aligned = math.isfinite(plane[t, 0])
-        if aligned:
+        if math.isfinite(plane[t, 0]):  # aligned: the plane's height at the centre
             kq = int(math.floor(plane[t, 0]))
         ground_k[t] = kq
         z0t = kq - half - pad
@@ -209,11 +220,7 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                 yj = y0 - pad + b
                 if yj < 0 or yj >= ny:
                     continue
-                z0 = z0t
-                if aligned:
-                    z0 += int(np.round((a - centre) * plane[t, 1] + (b - centre) * plane[t, 2]))
-                c0 = min(max(-z0, 0), side)
-                c1 = max(min(nz - z0, side), c0)
+                z0, c0, c1 = _column_z(z0t, plane, t, a, b, centre, side, nz)
                 for c in range(max(c0, pad), min(c1, pad + tv)):
                     seen += (hits[xi, yj, z0 + c] + passes[xi, yj, z0 + c]) > 0
         nobs[t] = seen
@@ -228,12 +235,7 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                 if xi < 0 or xi >= nx or yj < 0 or yj >= ny:
                     row[:] = 0.0
                     continue
-                z0 = z0t
-                if aligned:
-                    z0 += int(np.round((a - centre) * plane[t, 1] + (b - centre) * plane[t, 2]))
-                # the input's z range that lies inside the box; the rest reads as unobserved
-                c0 = min(max(-z0, 0), side)
-                c1 = max(min(nz - z0, side), c0)
+                z0, c0, c1 = _column_z(z0t, plane, t, a, b, centre, side, nz)
                 row[:c0] = 0.0
                 row[c1:] = 0.0
                 # branch-free so the compiler vectorizes it
