@@ -34,8 +34,7 @@ def shares(p: np.ndarray, y: np.ndarray, unknown: np.ndarray) -> dict:
 
 
 def main() -> None:
-    from landing_zone.config import MapConfig, TileConfig
-    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.checkpoint import input_configs, load_model
     from landing_zone.judging.inference import Predictor
     from landing_zone.judging.ood import load_reference, reference_path_for
     from landing_zone.learn.lofo import scene_families
@@ -56,8 +55,7 @@ def main() -> None:
     ds = SceneDataset(args.data, 'test')
     fams = scene_families(ds)
     pack = ScenePack.from_scenes(ds)
-    mcfg = MapConfig(voxel_size=float(meta.get('voxel_size', MapConfig().voxel_size)))
-    tcfg = TileConfig(**meta['tiles']) if 'tiles' in meta else TileConfig()
+    mcfg, tcfg = input_configs(meta)
     x, y = voxelize(pack, mcfg, tcfg, args.workers)
     with Predictor(net) as predict:
         p, feats = predict.with_features(x)

@@ -22,10 +22,12 @@ import torch
 from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
+from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, ModelError
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 
-__all__ = ['FORMAT', 'save_model', 'load_model', 'read_metadata', 'weights_sha256']
+__all__ = ['FORMAT', 'save_model', 'load_model', 'read_metadata', 'weights_sha256',
+           'input_configs']
 
 FORMAT = 'landing_zone.safety_net/1'  # checkpoint format tag in the metadata
 _META_KEY = 'landing_zone'
@@ -176,3 +178,20 @@ def load_model(path: str | os.PathLike[str], device: str | torch.device = 'cpu',
     if with_extra:
         return model, meta, {k: v for k, v in tensors.items() if k not in expected}
     return model, meta
+
+
+def input_configs(meta: dict[str, Any]) -> tuple[MapConfig, TileConfig]:
+    """The voxel size and tiles a model's inputs were made with (its metadata; the defaults
+    where a file predates them).
+
+    Raises:
+        ConfigError: a tile configuration this version cannot read.
+    """
+    vs = float(meta.get('voxel_size', MapConfig().voxel_size))
+    tiles = meta.get('tiles')
+    try:
+        return MapConfig(voxel_size=vs), (TileConfig(**tiles) if isinstance(tiles, dict)
+                                          else TileConfig())
+    except TypeError as err:
+        raise ConfigError(f'model metadata has a tile configuration this version cannot '
+                          f'read: {err}') from None

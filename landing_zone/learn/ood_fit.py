@@ -29,7 +29,7 @@ import numpy as np
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.checkpoint import input_configs, load_model
 from landing_zone.judging.inference import Predictor
 from landing_zone.judging.ood import FeatureReference, fit_reference, save_reference
 from landing_zone.judging.tiles import PatchVoxelizer
@@ -58,18 +58,6 @@ class OODFit:
     held_out_tiles: int
     held_out_past: float
     seconds: float
-
-
-def _configs(meta: dict[str, Any]) -> tuple[MapConfig, TileConfig]:
-    """The voxel size and tiles the model's inputs were made with (its metadata)."""
-    vs = float(meta.get('voxel_size', MapConfig().voxel_size))
-    tiles = meta.get('tiles')
-    try:
-        return MapConfig(voxel_size=vs), (TileConfig(**tiles) if isinstance(tiles, dict)
-                                          else TileConfig())
-    except TypeError as err:
-        raise ConfigError(f'model metadata has a tile configuration this version cannot '
-                          f'read: {err}') from None
 
 
 def _features(predictor: Predictor, pick: list[tuple[int, Any, int]], views: int, seed: int,
@@ -156,7 +144,7 @@ def fit_ood(model: str | os.PathLike[str], data: Sequence[str | os.PathLike[str]
     # the held-out scenes first, then the reference's; each list in the data's order
     held_pick = [(int(j), *pool[j]) for j in np.sort(order[:n_held])]
     ref_pick = [(int(j), *pool[j]) for j in np.sort(order[n_held:])]
-    map_cfg, tile_cfg = _configs(meta)
+    map_cfg, tile_cfg = input_configs(meta)
     with Predictor(net) as predictor:
         ref = _features(predictor, ref_pick, views, seed, map_cfg, tile_cfg, progress=progress)
         held = _features(predictor, held_pick, views, seed, map_cfg, tile_cfg,

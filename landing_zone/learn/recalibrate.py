@@ -47,8 +47,7 @@ def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | o
         ConfigError: a model that held nothing out.
         DatasetError: data without families, or no held-out scene.
     """
-    from landing_zone.config import MapConfig, TileConfig
-    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.checkpoint import input_configs, load_model
     from landing_zone.judging.inference import Predictor
     from landing_zone.learn.lofo import parse_hold_out, scene_families
     from landing_zone.learn.samples import voxelize
@@ -74,8 +73,7 @@ def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | o
             rng = np.random.default_rng([seed, k])
             idx = np.sort(rng.choice(idx, per_model, replace=False))
         pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(path).name}')
-        mcfg = MapConfig(voxel_size=float(meta.get('voxel_size', MapConfig().voxel_size)))
-        tcfg = TileConfig(**meta['tiles']) if 'tiles' in meta else TileConfig()
+        mcfg, tcfg = input_configs(meta)
         x, y = voxelize(pack, mcfg, tcfg, workers, progress, f'voxelizing {Path(path).name}')
         with Predictor(net) as predict:
             z = predict(x, logits=True)
