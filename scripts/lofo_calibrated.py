@@ -31,11 +31,9 @@ def main() -> None:
     for path in args.folds:
         net, meta = load_model(path)
         net.temperature, net.offset = t, b
-        keep = {k: v for k, v in meta.items()
-                if k not in ('format', 'model', 'temperature', 'calibration_offset',
-                             'weights_sha256')}
-        keep['calibration'] = {'copied_from': str(args.calibrated), 'temperature': t,
-                               'offset': b}
+        # save_model writes the format, spec, temperature, offset and digest afresh
+        keep = {**meta, 'calibration': {'copied_from': str(args.calibrated), 'temperature': t,
+                                        'offset': b}}
         out = path.with_name(path.stem + args.suffix + path.suffix)
         save_model(out, net, keep)
         print(f'wrote {out}: T {t:.3f}, offset {b:+.3f}')

@@ -131,10 +131,8 @@ def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike]
                                         'fitted': float((p(t, b)[y == 0] >= 0.5).mean())},
     }
     net.temperature, net.offset = t, b
-    keep = {k: v for k, v in meta.items()
-            if k not in ('format', 'model', 'temperature', 'calibration_offset',
-                         'weights_sha256')}
-    save_model(out, net, {**keep, 'calibration': summary})
+    # save_model writes the format, spec, temperature, offset and digest afresh
+    save_model(out, net, {**meta, 'calibration': summary})
     if progress:
         print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} on '
               f'{z.size} out-of-family scenes', file=sys.stderr)
