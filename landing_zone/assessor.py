@@ -629,9 +629,14 @@ class Assessor:
                                 self.config.tiles.occupied_density,
                                 self.config.landing_sites.clutter_height) \
                 if counts is not None else None
-            # the cubes of tiles that cannot be valid are not built: no network reads them
+            # the cubes of tiles that cannot be valid are not built: no network reads them;
+            # those that are come max-pooled by the net's opening pool (the tiler writes an
+            # eighth of the cube, the network skips that pass over it; the same numbers)
+            pool = self.model.input_pool
+            if self.model.config.input_size % pool:
+                pool = 1
             batch = tiles_from_counts(*counts, self.config.map.voxel_size, self.config.tiles,
-                                      todo, ground, invalid_inputs=False) \
+                                      todo, ground, invalid_inputs=False, pool=pool) \
                 if counts is not None else None
             p_net = np.full(len(todo), np.nan, np.float32)
             ood = np.full(len(todo), np.nan, np.float32)
@@ -642,10 +647,11 @@ class Assessor:
                 if self.ood is not None:
                     # the features come from the same forward pass as P(safe)
                     p_net[batch.valid], feats = self._predictor.with_features(
-                        x, batch_size=bs, check_finite=False)
+                        x, batch_size=bs, check_finite=False, pooled=pool > 1)
                     ood[batch.valid] = self.ood.ratio(feats)
                 else:
-                    p_net[batch.valid] = self._predictor(x, batch_size=bs, check_finite=False)
+                    p_net[batch.valid] = self._predictor(x, batch_size=bs, check_finite=False,
+                                                         pooled=pool > 1)
             p, guard = p_net, None
             if batch is not None and counts is not None and ground is not None \
                     and self.config.guard.enabled:

@@ -180,6 +180,31 @@ def test_predict_follows_weight_updates():
     np.testing.assert_allclose(after - before, 1.0, rtol=1e-5)
 
 
+def test_inference_pools_before_the_relu_and_takes_pooled_inputs_with_the_same_numbers():
+    """Eval mode pools a convolution's output before its ReLU (exact: ReLU is monotone), and
+    a net that opens with a pool takes its inputs pooled already (the assessor's tiler pools
+    them): the logits and features are those of the layers run one by one."""
+    torch.manual_seed(3)
+    net = SafetyNet(SafetyNetConfig('P2-C5-F8-P2-C3-F8-D16')).eval()
+    assert net.input_pool == 2 and small_net().input_pool == 1
+    x = torch.from_numpy(volumes(5, seed=1))
+    with torch.no_grad():
+        step = x
+        for block in net.features:  # conv, ReLU, (dropout: identity), pool, in that order
+            step = block(step)
+        ref = net.dense(step.reshape(5, -1))
+        pooled = torch.nn.functional.max_pool3d(x, 2)
+        assert torch.equal(net.embed(x), ref)
+        assert torch.equal(net.embed(pooled, pooled=True), ref)
+    p_full = predict(net, x.numpy(), precision='fp32', logits=True)
+    p_pooled = predict(net, pooled.numpy(), precision='fp32', logits=True, pooled=True)
+    np.testing.assert_array_equal(p_pooled, p_full)
+    with pytest.raises(ConfigError, match=r'\(T, 1, 16, 16, 16\)'):
+        predict(net, x.numpy(), pooled=True)
+    with pytest.raises(ConfigError, match='does not open with a pool'):
+        predict(small_net(), pooled.numpy(), pooled=True)
+
+
 def test_predict_rejects_bad_inputs():
     net = small_net()
     x = volumes(2)

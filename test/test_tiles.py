@@ -233,6 +233,31 @@ def test_invalid_inputs_false_skips_only_cubes_no_network_reads(rng):
     assert skipped == [order.index([0, 2])] and not full.valid[order.index([2, 0])]
 
 
+def test_pooled_inputs_are_the_max_pooled_cubes(rng):
+    """``pool=2`` writes each cube max-pooled (what the shipped net reads first), on flat and
+    sheared (ground-aligned) cubes and at the box's edges; everything else is unchanged."""
+    import torch
+
+    from landing_zone.judging.ground import fit_ground
+
+    heights = np.clip(10 + np.round(np.arange(60)[:, None] * 0.2 + rng.normal(0, 1, (60, 60))),
+                      0, 59).astype(np.int64)
+    h, p = heightfield_grid(heights)
+    p[:, :, 40:] += rng.integers(0, 3, p[:, :, 40:].shape).astype(np.uint32)
+    tiles = np.array([[0, 0], [1, 1], [2, 2], [-1, 1], [1, 2]])
+    ground = fit_ground(h, p, np.zeros(3, np.int64), VS, tiles, TV, 0.6, 0.5)
+    for cfg in (TileConfig(), TileConfig(align_to_ground=True)):
+        full = tiles_from_counts(h, p, (0, 0, 0), VS, cfg, tiles, ground)
+        pooled = tiles_from_counts(h, p, (0, 0, 0), VS, cfg, tiles, ground, pool=2)
+        assert pooled.inputs.shape == (len(tiles), 1, SIDE // 2, SIDE // 2, SIDE // 2)
+        ref = torch.nn.functional.max_pool3d(torch.from_numpy(full.inputs), 2).numpy()
+        np.testing.assert_array_equal(pooled.inputs, ref)
+        for name in ('index', 'ground_z', 'observed_fraction', 'n_returns', 'valid', 'cube_lo'):
+            np.testing.assert_array_equal(getattr(pooled, name), getattr(full, name))
+    with pytest.raises(ConfigError, match='pool'):
+        tiles_from_counts(h, p, (0, 0, 0), VS, pool=5)
+
+
 def test_requested_tiles_outside_the_box_are_unknown():
     h, p = heightfield_grid(np.full((20, 20), 10))
     b = tiles_from_counts(h, p, (0, 0, 0), VS, tiles=np.array([[0, 0], [5, -3]]))

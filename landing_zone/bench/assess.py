@@ -16,8 +16,9 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
   random reference of :data:`SYNTHETIC_REFERENCE` rows, timing only); the full-map and strip
   figures of the shipped model include it;
 - the network on the 400 inputs in fp32 (default layout and channels-last) and, where the CPU
-  has native bf16 (AVX-512 BF16 / AMX) or on CUDA, bf16 channels-last: ms per tile in a batch
-  and seconds per map (extraction + network);
+  has native bf16 (AVX-512 BF16 / AMX) or on CUDA, bf16 channels-last; for a net that opens
+  with a pool (the shipped one), also on the inputs the tiler pooled (as the assessor cuts
+  and feeds them): ms per tile in a batch and seconds per map (extraction + network);
 - re-assessing only the tiles a new batch of returns touched (the map's dirty tiles, widened by
   one tile since inputs reach into the neighbours' padding);
 - for reference, a training step (forward + backward + SGD, batch 20) and the data pipeline
@@ -57,6 +58,7 @@ TARGET_STRIP_S = 0.15
 AIM_MAP_S = 0.25
 TARGET_MS_PER_TILE = 5.0
 SYNTHETIC_REFERENCE = 4096  # rows of the timing-only reference when none is shipped
+POOLED = ', pooled by the tiler'  # the mode's suffix where the tiler pools the inputs
 
 
 def _times(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
@@ -101,17 +103,23 @@ def _reference(net: SafetyNet, shipped: bool) -> tuple[FeatureReference, str]:
             f'random, {SYNTHETIC_REFERENCE} rows (timing only)')
 
 
-def _network_rows(net: SafetyNet, inputs: np.ndarray, repeats: int, device: str
-                  ) -> list[tuple[str, float, float]]:
+def _network_rows(net: SafetyNet, inputs: np.ndarray, pooled: np.ndarray, repeats: int,
+                  device: str) -> list[tuple[str, float, float]]:
+    """Seconds of the net on the tiles' inputs per mode; for a net that opens with a pool, also
+    on ``pooled`` (the inputs the tiler pooled, as the assessor feeds it)."""
     rows = []
-    variants = [('fp32', False), ('fp32', True)]
+    variants = [('fp32', False, False), ('fp32', True, False)]
     if device == 'cuda' or bf16_supported():
-        variants.append(('bf16', True))
-    for precision, cl in variants:
+        variants.append(('bf16', True, False))
+    if net.input_pool > 1:
+        variants += [(prec, cl, True) for prec, cl, _ in variants if cl]
+    for precision, cl, pool in variants:
+        x = pooled if pool else inputs
         with Predictor(net) as predictor:  # one inference copy per mode, as the assessor keeps
-            med, best = _times(lambda: predictor(inputs, 256, precision, channels_last=cl),
-                               repeats)
-        rows.append((f'{precision} {"channels-last" if cl else "default layout"}', med, best))
+            med, best = _times(lambda: predictor(x, 256, precision, channels_last=cl,
+                                                 pooled=pool), repeats)
+        rows.append((f'{precision} {"channels-last" if cl else "default layout"}'
+                     f'{POOLED if pool else ""}', med, best))
     return rows
 
 
@@ -151,11 +159,17 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     ext_med, ext_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers), repeats)
     cnt_med, _ = _times(dmap.counts, repeats)
     batch = extract_tiles(dmap, tcfg, buffers=buffers)
+    # what the assessor cuts for a net that opens with a 2^3 pool (the shipped one)
+    extp_med, extp_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers, pool=2),
+                                 repeats)
+    pooled = extract_tiles(dmap, tcfg, buffers=buffers, pool=2).inputs
     n = len(batch)
     results.update(tiles=n, valid_tiles=int(batch.valid.sum()), extract_s=ext_med,
-                   extract_counts_s=cnt_med)
+                   extract_pooled_s=extp_med, extract_counts_s=cnt_med)
     print(f'extract {n} tiles ({int(batch.valid.sum())} valid): {ext_med * 1e3:.1f} ms '
-          f'({ext_best * 1e3:.1f}); of which reading the counts {cnt_med * 1e3:.1f} ms')
+          f'({ext_best * 1e3:.1f}); of which reading the counts {cnt_med * 1e3:.1f} ms; '
+          f'pooled 2^3 as the shipped net reads them: {extp_med * 1e3:.1f} ms '
+          f'({extp_best * 1e3:.1f})')
 
     tv = tile_voxels(dmap.voxel_size, tcfg)
     gcfg = GuardConfig()
@@ -214,22 +228,25 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         if device == 'cuda':
             net = net.to('cuda')
         nets[spec] = net
-        rows = _network_rows(net, batch.inputs, repeats, device)
+        rows = _network_rows(net, batch.inputs, pooled, repeats, device)
         best_row = min(rows, key=lambda r: r[1])
         net_s, judged = best_row[1], best_row[0]
+        pool = judged.endswith(POOLED)
+        x = pooled if pool else batch.inputs
         if spec == DEFAULT_SPEC:  # what flies: the network with its OOD signal
             ref, ref_label = _reference(net, 'shipped' in label)
             refs[spec] = ref
             prec, cl = judged.split()[0], 'channels-last' in judged
             with Predictor(net) as predictor:
-                feats = predictor.with_features(batch.inputs, 256, prec, channels_last=cl)[1]
+                feats = predictor.with_features(x, 256, prec, channels_last=cl,
+                                                pooled=pool)[1]
                 net_s, _ = _times(lambda: ref.ratio(predictor.with_features(
-                    batch.inputs, 256, prec, channels_last=cl)[1]), repeats)
+                    x, 256, prec, channels_last=cl, pooled=pool)[1]), repeats)
             dist_s, dist_best = _times(lambda: ref.ratio(feats), repeats)
             judged += ' + OOD'
             results['ood'] = {'reference': ref_label, 'rows': int(len(ref.features)),
                               'distance_s': dist_s, 'network_with_ood_s': net_s}
-        full = ext_med + ground_med + guard_med + sites_med + net_s
+        full = (extp_med if pool else ext_med) + ground_med + guard_med + sites_med + net_s
         results[spec] = {
             'label': label, 'mmac_per_tile': net.flops() / 1e6,
             'network_s': {name: med for name, med, _ in rows},
@@ -264,20 +281,21 @@ def run(batches: int = 30, seed: int = 0) -> dict:
           f'{len(dirty)} dirty tiles, {len(wide)} with their neighbours:')
     for spec, net in nets.items():
         mode = results[spec]['best']
-        prec, cl = mode.split()[0], 'channels-last' in mode
+        prec, cl, pool = mode.split()[0], 'channels-last' in mode, mode.endswith(POOLED)
 
         predictor = Predictor(net)
         ref = refs.get(spec)
 
         def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl,
-                   ref: FeatureReference | None = ref) -> None:
-            sub = extract_tiles(dmap, tcfg, wide, buffers=buffers)
+                   ref: FeatureReference | None = ref, pool: bool = pool) -> None:
+            sub = extract_tiles(dmap, tcfg, wide, buffers=buffers, pool=2 if pool else 1)
             g = ground(sub)
             guard(sub, g)
             if ref is None:
-                predictor(sub.inputs, 256, prec, channels_last=cl)
+                predictor(sub.inputs, 256, prec, channels_last=cl, pooled=pool)
             else:  # as the assessor runs it: the features from the same pass
-                ref.ratio(predictor.with_features(sub.inputs, 256, prec, channels_last=cl)[1])
+                ref.ratio(predictor.with_features(sub.inputs, 256, prec, channels_last=cl,
+                                                  pooled=pool)[1])
             sites(grd)  # the grid's candidates are chosen afresh
 
         med, best = _times(update, repeats)

@@ -77,7 +77,7 @@ class Predictor:
 
     def __call__(self, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
                  precision: str = 'auto', logits: bool = False, channels_last: bool = True,
-                 check_finite: bool = True) -> np.ndarray:
+                 check_finite: bool = True, pooled: bool = False) -> np.ndarray:
         """P(safe) of a batch of volumes (or the raw logits).
 
         Runs under ``torch.inference_mode`` with channels-last 3D tensors; the logits are
@@ -96,6 +96,9 @@ class Predictor:
             check_finite: refuse inputs with NaN/Inf; a caller whose inputs are finite by
                 construction (the assessor's tiler writes 2 * density - 1) skips the pass over
                 them (a sixth of a 400-tile map's inference time here).
+            pooled: the inputs are max-pooled already by the net's opening pool, (T, 1, S/p,
+                S/p, S/p) (:attr:`SafetyNet.input_pool`; the assessor's tiler pools them as it
+                writes them).
 
         Returns:
             (T,) float32.
@@ -104,24 +107,24 @@ class Predictor:
             ConfigError: inputs of the wrong shape or with NaN/Inf, or a bad precision.
         """
         out, _ = self._run(inputs, batch_size, precision, logits, channels_last, check_finite,
-                           features=False)
+                           features=False, pooled=pooled)
         return out
 
     def with_features(self, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
                       precision: str = 'auto', logits: bool = False,
-                      channels_last: bool = True, check_finite: bool = True
-                      ) -> tuple[np.ndarray, np.ndarray]:
+                      channels_last: bool = True, check_finite: bool = True,
+                      pooled: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """P(safe) (as :meth:`__call__`) and the penultimate features, from the same forward
         pass: ``(T,)`` and ``(T, F)`` float32 (:meth:`SafetyNet.embed`: what the head reads;
         the OOD signal, :mod:`landing_zone.judging.ood`, measures them)."""
         out, feats = self._run(inputs, batch_size, precision, logits, channels_last,
-                               check_finite, features=True)
+                               check_finite, features=True, pooled=pooled)
         assert feats is not None
         return out, feats
 
     def _run(self, inputs: np.ndarray | torch.Tensor, batch_size: int, precision: str,
-             logits: bool, channels_last: bool, check_finite: bool, features: bool
-             ) -> tuple[np.ndarray, np.ndarray | None]:
+             logits: bool, channels_last: bool, check_finite: bool, features: bool,
+             pooled: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         model = self.model
         if precision not in ('auto', 'bf16', 'fp32'):
             raise ConfigError(f"precision must be 'auto', 'bf16' or 'fp32', got {precision!r}")
@@ -130,7 +133,10 @@ class Predictor:
         x = torch.as_tensor(inputs)
         if x.dim() == 4:
             x = x.unsqueeze(1)  # (T, 1, S, S, S)
-        side = model.config.input_size
+        if pooled and model.input_pool == 1:
+            raise ConfigError(f'pooled inputs for a net that does not open with a pool '
+                              f'({model.spec})')
+        side = model.config.input_size // (model.input_pool if pooled else 1)
         if x.dim() != 5 or tuple(x.shape[1:]) != (1, side, side, side):
             raise ConfigError(f'inputs must be (T, 1, {side}, {side}, {side}), got '
                               f'{tuple(torch.as_tensor(inputs).shape)}')
@@ -150,10 +156,10 @@ class Predictor:
                 xb = x[i:i + batch_size].to(device=device, dtype=dtype)
                 xb = xb.contiguous(memory_format=fmt)  # (B, 1, D, H, W)
                 if feats is None:
-                    lg, _ = net(xb)
+                    lg, _ = net(xb, pooled=pooled)
                 else:
                     # the forward pass in two steps, the features kept between them
-                    fb = net.embed(xb)  # (B, F)
+                    fb = net.embed(xb, pooled)  # (B, F)
                     lg = net.head(fb).squeeze(1)
                     feats[i:i + batch_size] = fb.float().cpu()
                 out[i:i + batch_size] = lg.float().cpu()
@@ -180,7 +186,8 @@ class Predictor:
 
 def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
             precision: str = 'auto', logits: bool = False, channels_last: bool = True,
-            check_finite: bool = True) -> np.ndarray:
+            check_finite: bool = True, pooled: bool = False) -> np.ndarray:
     """P(safe) of a batch of volumes with a one-shot :class:`Predictor` (see its call)."""
     with Predictor(model) as predictor:
-        return predictor(inputs, batch_size, precision, logits, channels_last, check_finite)
+        return predictor(inputs, batch_size, precision, logits, channels_last, check_finite,
+                         pooled)

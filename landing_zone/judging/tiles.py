@@ -68,7 +68,8 @@ class TileBatch:
         centers: (T, 2) float64 tile centres [m].
         ground_z: (T,) float64 estimated ground height [m] (centre of the ground voxel); NaN
             where no occupied voxel was found.
-        inputs: (T, 1, S, S, S) float32 network inputs in [-1, 1], axes (x, y, z).
+        inputs: (T, 1, S, S, S) float32 network inputs in [-1, 1], axes (x, y, z); (T, 1,
+            S/p, S/p, S/p) when cut with ``pool=p`` (max-pooled).
         cube_lo: (T, 3) int64 global voxel index of each input's lower corner (padding
             included), so input voxel (a, b, c) is lattice voxel ``cube_lo + (a, b, c)``.
         observed_fraction: (T,) float32 share of the unpadded cube hit or passed at least once.
@@ -157,8 +158,8 @@ def _column_z(z0t, plane, t, a, b, centre, side, nz):  # type: ignore[no-untyped
 
 
 def _tile_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, skip_below, out, ground_k,
-        nobs, nret):
+        hits, passes, lo, tiles, tv, pad, quantile, occupied, plane, skip_below, pool, out,
+        ground_k, nobs, nret):
     """Ground voxel, input cube, observed voxels and returns of every tile (one per thread).
 
     ``ground_k[t]`` is the ground voxel's z index in box coordinates, or -2**62 when the tile
@@ -167,7 +168,9 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
     aligned to it: the ground voxel is the plane's at the centre and every column of the cube
     is shifted by the plane's rise there, in whole voxels (a shear). ``skip_below`` = (returns,
     observed voxels): a tile with fewer of either gets an all-zero input instead of its cube (it
-    is not valid, so no network reads it); (0, 0) builds every cube.
+    is not valid, so no network reads it); (0, 0) builds every cube. ``pool`` > 1 writes each
+    cube max-pooled by ``pool`` per axis (``out`` is then (T, 1, S/pool, S/pool, S/pool)), as
+    the network's opening pool would.
     """
     nx, ny, nz = hits.shape
     side = tv + 2 * pad
@@ -227,6 +230,9 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
         if returns < skip_below[0] or seen < skip_below[1]:
             out[t, 0] = 0.0
             continue
+        if pool > 1:
+            _pooled_cube(hits, passes, t, x0, y0, z0t, plane, pad, side, centre, pool, out)
+            continue
         for a in range(side):
             xi = x0 - pad + a
             for b in range(side):
@@ -243,6 +249,37 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                     h = np.float32(hits[xi, yj, z0 + c])
                     p = np.float32(passes[xi, yj, z0 + c])
                     row[c] = (h - p) / (h + p + np.float32(2.0))
+
+
+@nb.njit(cache=True, nogil=True, inline='always')
+def _pooled_cube(  # type: ignore[no-untyped-def]
+        hits, passes, t, x0, y0, z0t, plane, pad, side, centre, pool, out):
+    """Tile ``t``'s input cube max-pooled by ``pool``: each column's values (as the full cube
+    has them, 0 outside the box) folded into the pooled cell's running maximum."""
+    nx, ny, nz = hits.shape
+    cube = out[t, 0]
+    cube[:] = -np.inf
+    col = np.empty(side, np.float32)
+    for a in range(side):
+        xi = x0 - pad + a
+        for b in range(side):
+            yj = y0 - pad + b
+            if xi < 0 or xi >= nx or yj < 0 or yj >= ny:
+                col[:] = 0.0
+            else:
+                z0, c0, c1 = _column_z(z0t, plane, t, a, b, centre, side, nz)
+                col[:c0] = 0.0
+                col[c1:] = 0.0
+                for c in range(c0, c1):
+                    h = np.float32(hits[xi, yj, z0 + c])
+                    p = np.float32(passes[xi, yj, z0 + c])
+                    col[c] = (h - p) / (h + p + np.float32(2.0))
+            row = cube[a // pool, b // pool]
+            for q in range(side // pool):
+                m = col[q * pool]
+                for r in range(1, pool):
+                    m = max(m, col[q * pool + r])
+                row[q] = max(row[q], m)
 
 
 # Parallel over tiles for maps; serial for a few tiles (a patch), where starting the thread pool
@@ -267,7 +304,7 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
                       voxel_size: float, config: TileConfig | None = None,
                       tiles: np.ndarray | None = None,
                       ground: TileGround | None = None,
-                      invalid_inputs: bool = True) -> TileBatch:
+                      invalid_inputs: bool = True, pool: int = 1) -> TileBatch:
     """Cut a box of hit / pass counts into tiles: ground, network inputs, validity.
 
     Args:
@@ -286,6 +323,10 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
             them); False leaves those with too few returns or observed voxels all zeros,
             which saves a map's assessment the cubes no network reads. Everything else
             (ground, observed fraction, returns, validity) is the same either way.
+        pool: write each input max-pooled by this many voxels per axis, (T, 1, S/pool,
+            S/pool, S/pool): what a net whose spec opens with that pool reads first
+            (:attr:`SafetyNet.input_pool`), so the assessor neither writes nor pools the full
+            cubes. 1: the cubes themselves.
 
     Returns:
         A :class:`TileBatch` of the tiles in the order given (x then y by default).
@@ -308,8 +349,11 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
     lo_arr = lo_arr.astype(np.int64)
     idx = tiles_in_box(lo_arr, h.shape, tv) if tiles is None else _as_tiles(tiles)
     side = tv + 2 * cfg.padding
+    if pool < 1 or side % pool:
+        raise ConfigError(f'pool must be a divisor of the input side {side}, got {pool}')
     n = idx.shape[0]
-    inputs = np.empty((n, 1, side, side, side), np.float32)
+    cells = side // pool
+    inputs = np.empty((n, 1, cells, cells, cells), np.float32)
     ground_k = np.empty(n, np.int64)
     nobs = np.empty(n, np.int64)
     nret = np.empty(n, np.int64)
@@ -330,7 +374,8 @@ def tiles_from_counts(hits: np.ndarray, passes: np.ndarray, lo: ArrayLike,
             skip[1] = max(int(math.ceil(cfg.min_observed_fraction * tv ** 3)) - 1, 0)
         kernel(np.ascontiguousarray(h, np.uint32), np.ascontiguousarray(p, np.uint32),
                lo_arr, idx, tv, int(cfg.padding), float(cfg.ground_quantile),
-               float(cfg.occupied_density), plane, skip, inputs, ground_k, nobs, nret)
+               float(cfg.occupied_density), plane, skip, int(pool), inputs, ground_k, nobs,
+               nret)
     has_ground = ground_k > -(2 ** 62)
     gk = np.where(has_ground, ground_k, 0) + lo_arr[2]
     ground_z = np.where(has_ground, (gk + 0.5) * voxel_size, np.nan)
@@ -364,8 +409,8 @@ class CountBuffers:
 
 def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
                   tiles: np.ndarray | None = None,
-                  buffers: CountBuffers | None = None) -> TileBatch:
-    """Tiles of a density map (see :func:`tiles_from_counts`).
+                  buffers: CountBuffers | None = None, pool: int = 1) -> TileBatch:
+    """Tiles of a density map (see :func:`tiles_from_counts`; ``pool`` as there).
 
     Only the counts of the bounding box of the requested tiles (padding included, clipped to
     the map's window) are read, so re-assessing a few dirty tiles reads little. Into
@@ -383,7 +428,7 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     idx = tiles_in_box(lo, dmap.shape, tv) if tiles is None else _as_tiles(tiles)
     if idx.shape[0] == 0:
         return tiles_from_counts(np.zeros((0, 0, 0), np.uint32), np.zeros((0, 0, 0), np.uint32),
-                                 lo, dmap.voxel_size, cfg, idx)
+                                 lo, dmap.voxel_size, cfg, idx, pool=pool)
     box_lo = np.concatenate([idx.min(axis=0) * tv - cfg.padding, lo[2:]])
     box_hi = np.concatenate([(idx.max(axis=0) + 1) * tv + cfg.padding, hi[2:]])
     box_lo = np.clip(box_lo, lo, hi)
@@ -391,7 +436,7 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     sx, sy, sz = (int(v) for v in box_hi - box_lo)
     bufs = buffers.get((sx, sy, sz)) if buffers is not None else None
     h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
-    return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx)
+    return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx, pool=pool)
 
 
 class PatchVoxelizer:
