@@ -583,7 +583,10 @@ class Assessor:
         pad = self.config.tiles.padding
         lo = np.asarray(self.map.lo, np.int64)
         hi = np.asarray(self.map.hi, np.int64)
-        box_lo = np.concatenate([tiles.min(axis=0) * self.tile_vox - pad, lo[2:]])
+        # from the lowest level any ray reached: the levels below hold nothing, and every
+        # reader (tiler, ground planes, guard) takes a box's outside for unobserved
+        floor = np.array([self.map.floor_z], np.int64)
+        box_lo = np.concatenate([tiles.min(axis=0) * self.tile_vox - pad, floor])
         box_hi = np.concatenate([(tiles.max(axis=0) + 1) * self.tile_vox + pad, hi[2:]])
         box_lo = np.clip(box_lo, lo, hi)
         box_hi = np.clip(box_hi, box_lo, hi)

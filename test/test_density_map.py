@@ -254,3 +254,28 @@ def test_serial_and_threaded_maps_agree():
     fill_random(b, 3000, seed=8)
     for x, y in zip(a.counts(), b.counts()):
         np.testing.assert_array_equal(x, y)
+
+
+def test_floor_z_is_a_lower_bound_of_every_count():
+    """No voxel under ``floor_z`` holds a count, whatever the rays' directions, scrolling,
+    clearing or a restored state; an empty map reports one level under its top."""
+    rng = np.random.default_rng(4)
+    dmap = DensityMap(MapConfig(size_xy=4.0, size_z=4.0, z_below=2.0))
+    assert dmap.floor_z == int(dmap.hi[2]) - 1
+    origin = np.array([0.3, -0.2, 6.0])
+    pts = np.column_stack([rng.uniform(-1.5, 1.5, (500, 2)), rng.uniform(-0.5, 0.3, 500)])
+    dmap.integrate(pts, origin)
+    up = np.column_stack([rng.uniform(-1.5, 1.5, (50, 2)), np.full(50, 1.5)])
+    dmap.integrate(up, np.array([0.0, 0.0, -1.2]))  # rays rising from below the ground
+    for step in range(3):
+        h, p = dmap.counts()
+        k = np.nonzero((h + p).any(axis=(0, 1)))[0]
+        floor = dmap.floor_z - int(dmap.lo[2])
+        assert k.min() >= floor and floor <= int(np.floor(-1.2 / dmap.voxel_size)) - dmap.lo[2]
+        assert floor >= 0
+        dmap.recenter((0.5 * step, 0.0, 0.4 * step))
+    state = dmap.export_state()
+    dmap.clear()
+    assert dmap.floor_z == int(dmap.hi[2]) - 1
+    dmap.import_state(state)
+    assert dmap.floor_z == int(dmap.lo[2])

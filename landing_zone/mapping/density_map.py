@@ -12,6 +12,7 @@ the walk itself are described in :mod:`landing_zone.mapping.raytrace`.
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,6 +33,7 @@ _COLD_BYTES = 2 * _BRICK_VOX  # high bytes of the hits, then of the passes, of o
 # Below this many rays a batch is walked on the calling thread alone: waking a helper costs
 # more than it saves.
 _PARALLEL_MIN_RAYS = 2048
+_NOTHING = 2 ** 62  # the z floor of a map no ray has touched
 
 
 def _round_up(n: int, m: int) -> int:
@@ -313,6 +315,8 @@ class DensityMap:
         # XY cell (voxels) the batch is counting-sorted by before the walk; 0 keeps input order
         self.sort_tile = SORT_TILE
         self.lo = np.zeros(3, np.int64)
+        # global z index below which no voxel holds a count (see floor_z)
+        self._z_floor = _NOTHING
         if tile_vox is None:
             tile_vox = max(1, int(round(1.0 / self.voxel_size)))
         self.tile_vox = 0
@@ -325,6 +329,15 @@ class DensityMap:
     def hi(self) -> np.ndarray:
         """(3,) int64, one past the window's last voxel (global lattice index)."""
         return self.lo + self._n
+
+    @property
+    def floor_z(self) -> int:
+        """Global z index below which every voxel of the window holds no count: the lowest
+        level any ray touched since the map was empty (the window's floor at the least, one
+        level under its top at the most). A reader of the counts may start its box here (the
+        assessor does: on a site flown from above, the levels under the ground are a third to
+        a half of the map, and every kernel reads whole columns)."""
+        return int(min(max(self._z_floor, self.lo[2]), self.hi[2] - 1))
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -398,6 +411,10 @@ class DensityMap:
         stats.integrated = int(nvalid)
         if nvalid == 0:
             return stats
+        # every cell a ray walks lies between its origin's and its return's levels
+        rays = order[:nvalid]
+        low = math.floor(min(float(uo[rays, 2].min()), float(up[rays, 2].min())))
+        self._z_floor = min(self._z_floor, max(low, int(lo[2])))
         resume = np.zeros(self._nparts, np.int64)
         counters = np.zeros((self._nparts, 2), np.int64)
         while True:
@@ -727,6 +744,7 @@ class DensityMap:
         self._pool = np.zeros((self._nparts, cap, _COLD_BYTES), np.uint8)
         self._pool[:, :pool.shape[1]] = pool
         self._used[:] = used
+        self._z_floor = int(self.lo[2])  # not recorded: any level may hold counts
         self._dirty[:] = 0
         rel = dirty - self._dirty_lo
         keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
@@ -734,6 +752,7 @@ class DensityMap:
 
     def clear(self) -> None:
         """Forget every count (the window stays where it is)."""
+        self._z_floor = _NOTHING
         self._hits.fill(0)
         self._passes.fill(0)
         self._cdir.fill(-1)
