@@ -515,12 +515,16 @@ def evaluate(
         help='synth3: the figures per obstacle, vegetation, terrain and sensor family, and '
              'the leave-one-family-out table (each family judged by a --model that never '
              'saw it).')] = False,
+    scores: Annotated[Optional[Path], typer.Option(
+        help='Write every scene\'s score by every method here (JSON: scene indices, labels, '
+             'scores per method), for breakdowns by scene parameters.')] = None,
 ) -> None:
     from landing_zone.learn.evaluate import evaluate as run_evaluate
 
     res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
                        split=split.value, workers=workers, fit_scenes=fit_scenes,
-                       max_scenes=max_scenes, seed=seed, by_family=by_family)
+                       max_scenes=max_scenes, seed=seed, by_family=by_family,
+                       scores_path=scores)
     print(res['table'], end='')
 
 

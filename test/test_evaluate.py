@@ -147,7 +147,12 @@ def test_evaluate_writes_the_report(tmp_path):
     out = tmp_path / 'eval'
     res = evaluate_scenes(toy_scenes(12, seed=2), 'toy', 'test', model,
                           json_path=tmp_path / 'r.json', out_dir=out,
-                          extra_methods=[Fixed('always safe', np.ones(12))])
+                          extra_methods=[Fixed('always safe', np.ones(12))],
+                          scores_path=tmp_path / 's.json')
+    per = json.loads((tmp_path / 's.json').read_text())
+    assert per['scenes'] == list(range(12)) and len(per['labels']) == 12
+    assert per['methods']['always safe'] == [1.0] * 12
+    assert per['labels'] == [int(toy_scenes(12, seed=2)[i].label) for i in range(12)]
     doc = json.loads((tmp_path / 'r.json').read_text())
     assert doc['n'] == 12 and doc['n_unsafe'] == 6 and doc['dataset'] == 'toy'
     assert list(doc['methods']) == ['CNN C5-F8-P2-D32', 'always safe']

@@ -46,7 +46,7 @@ from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet
 
 __all__ = ['Method', 'CNNMethod', 'MethodResult', 'evaluate_methods', 'markdown_table',
-           'results_json', 'evaluate', 'evaluate_scenes']
+           'results_json', 'scores_json', 'evaluate', 'evaluate_scenes']
 
 ECE_BINS = 15
 
@@ -167,6 +167,20 @@ def results_json(results: list[MethodResult], dataset: str, split: str, n: int,
                         for r in results}}
 
 
+def scores_json(results: list[MethodResult], scene_ids: np.ndarray, labels: np.ndarray,
+                dataset: str, split: str) -> dict[str, Any]:
+    """Every scene's score by every method, for breakdowns the tables do not make.
+
+    ``scenes[i]`` is row i's index in its source (``SceneDataset[scenes[i]]`` gives the scene
+    and its params), ``labels[i]`` its label (1 safe) and ``methods[name][i]`` the method's
+    score (P(safe) for a probabilistic one).
+    """
+    return {'dataset': dataset, 'split': split,
+            'scenes': [int(i) for i in np.asarray(scene_ids).reshape(-1)],
+            'labels': [int(v) for v in np.asarray(labels).reshape(-1)],
+            'methods': {r.name: [round(float(v), 6) for v in r.scores] for r in results}}
+
+
 # --- look inside -------------------------------------------------------------------------------
 
 def _even_subset(n: int, k: int) -> np.ndarray:
@@ -180,8 +194,8 @@ def evaluate(data: str | os.PathLike,
              baselines: bool = False, json_path: str | os.PathLike | None = None,
              out_dir: str | os.PathLike | None = None, split: str = 'test', workers: int = 0,
              fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
-             precision: str = 'auto', progress: bool = True, by_family: bool = False
-             ) -> dict[str, Any]:
+             precision: str = 'auto', progress: bool = True, by_family: bool = False,
+             scores_path: str | os.PathLike | None = None) -> dict[str, Any]:
     """Evaluate the CNN (and with ``baselines`` the paper's baselines) on a dataset split.
 
     Args:
@@ -203,6 +217,7 @@ def evaluate(data: str | os.PathLike,
         by_family: also the figures per family and the leave-one-family-out table
             (:mod:`landing_zone.learn.lofo`; synth3 data): RESULTS.json gains 'families', the table
             the family tables.
+        scores_path: write every scene's score by every method here (:func:`scores_json`).
 
     Returns:
         The RESULTS.json dictionary, plus 'table' (markdown).
@@ -225,7 +240,7 @@ def evaluate(data: str | os.PathLike,
     train_source = SceneDataset(data, 'train') if baselines else None
     return evaluate_scenes(ds, name, split, model, baselines, train_source, json_path, out_dir,
                            workers, fit_scenes, max_scenes, seed, precision, progress,
-                           by_family=by_family)
+                           by_family=by_family, scores_path=scores_path)
 
 
 def evaluate_scenes(source: Any, dataset: str, split: str,
@@ -235,8 +250,8 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
                     out_dir: str | os.PathLike | None = None, workers: int = 0,
                     fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
                     precision: str = 'auto', progress: bool = False,
-                    extra_methods: list[Any] | None = None, by_family: bool = False
-                    ) -> dict[str, Any]:
+                    extra_methods: list[Any] | None = None, by_family: bool = False,
+                    scores_path: str | os.PathLike | None = None) -> dict[str, Any]:
     """:func:`evaluate` on any sequence of scenes (``len``, ``[i] -> Scene``).
 
     Args:
@@ -315,6 +330,11 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         p = Path(json_path)
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_text(json.dumps(out, indent=1) + '\n', encoding='utf-8')
+    if scores_path is not None:
+        p = Path(scores_path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        doc = scores_json(results, pack.scene_ids.numpy(), y, dataset, split)
+        p.write_text(json.dumps(doc) + '\n', encoding='utf-8')
     if out_dir is not None:
         d = Path(out_dir)
         d.mkdir(parents=True, exist_ok=True)
