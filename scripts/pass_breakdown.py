@@ -1,0 +1,178 @@
+"""Which obstacles the network passes: the obstacle scenes of synth3 split by what they are.
+
+Reads the per-scene scores ``landing-zone evaluate --scores`` writes (one tile per scene, the
+same voxelization and scoring as ``evaluate --by-family``) and the scenes' parameters, and
+gives, pooled over the obstacle families, the share of **obstacle scenes** judged at
+P(safe) >= 0.5 and >= 0.9 by:
+
+* exposed height above the ground: the obstacle's height less its burial
+  (``obstacle.size[2] - obstacle.embed``), in bands of 10-15, 15-30, 30-60 cm (and below /
+  above where there are any);
+* hidden in vegetation or not (``hide``: the vegetation raised to 0.6-1.1 x the exposed
+  height around it);
+* placement: wholly inside the tile, or straddling its edge with half its radius inside;
+* vegetation family, terrain family, scan pattern, density band (returns/m^2 the scan gave),
+  sensor height band.
+
+Every row is given for all obstacle scenes and for those exposed 15 cm or more (issue 15's bar
+is about solid obstacles of 15-50 cm, even hidden in grass). With ``--lofo RESULTS.json``
+(``evaluate --by-family --json`` of the same run) each scene is scored instead by the model
+that never saw its obstacle family (the 'lofo' table's model), as the headline table is::
+
+    landing-zone evaluate --data DIR --by-family --model M [--model FOLD...] \\
+        --json results.json --scores scores.json
+    python scripts/pass_breakdown.py DIR scores.json [--method NAME | --lofo results.json] \\
+        [--families F... | --exclude F...] [--max-height M] [--json breakdown.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+HEIGHT_BANDS = (0.10, 0.15, 0.30, 0.60)  # [m] exposed height band edges
+DENSITY_BANDS = (1700.0, 2900.0)  # [returns/m^2] log-thirds of synth3's 1000-5000
+SENSOR_HEIGHT_BANDS = (8.0, 12.0, 16.0)  # [m] of synth3's 4-20
+BAR_HEIGHT = 0.15  # [m] issue 15's bar starts at obstacles of 15 cm
+
+
+def band(v: float, edges: tuple[float, ...], unit: Callable[[float], str]) -> str:
+    """The band of ``v``: 'a-b', '< first' or '>= last' (edges ascending)."""
+    if v < edges[0]:
+        return f'< {unit(edges[0])}'
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        if v < hi:
+            return f'{unit(lo)}-{unit(hi)}'
+    return f'>= {unit(edges[-1])}'
+
+
+def exposed_height(params: dict[str, Any]) -> float:
+    ob = params['obstacle']
+    return float(ob['size'][2]) - float(ob.get('embed', 0.0))
+
+
+def groups(params: dict[str, Any]) -> dict[str, str]:
+    """The scene's group on every axis of the breakdown."""
+    cm = (lambda m: f'{round(100 * m)} cm')
+    s = params['sensor']
+    return {
+        'exposed height': band(exposed_height(params), HEIGHT_BANDS, cm),
+        'hidden in vegetation': 'hidden' if params.get('hide') is not None else 'not hidden',
+        'placement': 'inside the tile' if params.get('inside') else 'straddling the edge',
+        'vegetation': params['vegetation']['family'],
+        'terrain': params['terrain']['family'],
+        'scan pattern': s['family'],
+        'density [returns/m^2]': band(float(params['density']), DENSITY_BANDS,
+                                      lambda v: f'{v:.0f}'),
+        'sensor height': band(float(s['height']), SENSOR_HEIGHT_BANDS, lambda v: f'{v:.0f} m'),
+    }
+
+
+def shares(p: np.ndarray) -> dict[str, Any]:
+    return {'n': int(len(p)),
+            'ge_0.5': float(np.mean(p >= 0.5)) if len(p) else None,
+            'ge_0.9': float(np.mean(p >= 0.9)) if len(p) else None}
+
+
+def breakdown(p: np.ndarray, rows: list[dict[str, str]], tall: np.ndarray
+              ) -> dict[str, Any]:
+    """Per axis and group: the shares of all obstacle scenes and of those exposed >= 15 cm."""
+    out: dict[str, Any] = {'all': {'all': {'all': shares(p),
+                                           'exposed >= 15 cm': shares(p[tall])}}}
+    for axis in rows[0]:
+        names = np.array([r[axis] for r in rows], dtype=object)
+        out[axis] = {}
+        for g in sorted(set(names), key=_order):
+            sel = names == g
+            out[axis][g] = {'all': shares(p[sel]), 'exposed >= 15 cm': shares(p[sel & tall])}
+    return out
+
+
+def _order(g: str) -> tuple[float, str]:
+    """Bands by their lower edge ('< x' first), names alphabetically."""
+    head = g.split()[0].split('-')[0]
+    if g.startswith('<'):
+        return (-math.inf, g)
+    if g.startswith('>='):
+        return (math.inf, g)
+    try:
+        return (float(head), g)
+    except ValueError:
+        return (0.0, g)
+
+
+def markdown(report: dict[str, Any]) -> str:
+    def pct(v: float | None) -> str:
+        return '-' if v is None else f'{100 * v:.1f} %'
+
+    lines = ['| group | obstacle scenes | P(safe) >= 0.5 | >= 0.9 | of them exposed >= 15 cm '
+             '| >= 0.5 | >= 0.9 |', '|---|---:|---:|---:|---:|---:|---:|']
+    for axis, per in report.items():
+        for g, v in per.items():
+            a, t = v['all'], v['exposed >= 15 cm']
+            name = 'all' if axis == 'all' else f'{axis}: {g}'
+            lines.append(f'| {name} | {a["n"]} | {pct(a["ge_0.5"])} | {pct(a["ge_0.9"])} | '
+                         f'{t["n"]} | {pct(t["ge_0.5"])} | {pct(t["ge_0.9"])} |')
+    return '\n'.join(lines) + '\n'
+
+
+def main() -> None:
+    from landing_zone.sim.shards import SceneDataset
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument('data', type=Path, help='the synth3 directory the scores were made on')
+    ap.add_argument('scores', type=Path, help='landing-zone evaluate --scores output')
+    ap.add_argument('--method', default=None,
+                    help='the scores of this method (default: the first)')
+    ap.add_argument('--lofo', type=Path, default=None,
+                    help='evaluate --by-family --json of the same run: score each scene by '
+                         'the model that never saw its obstacle family')
+    ap.add_argument('--families', nargs='*', default=None,
+                    help='only these obstacle families (default: all)')
+    ap.add_argument('--exclude', nargs='*', default=(),
+                    help='leave these obstacle families out (e.g. coil: see-through, not solid)')
+    ap.add_argument('--max-height', type=float, default=math.inf,
+                    help='only obstacles exposed less than this [m] (0.5: the bar\'s 15-50 cm)')
+    ap.add_argument('--json', type=Path, default=None)
+    args = ap.parse_args()
+    doc = json.loads(args.scores.read_text())
+    ds = SceneDataset(args.data, doc['split'])
+    scenes = np.asarray(doc['scenes'], np.int64)
+    labels = np.asarray(doc['labels'], np.int64)
+    methods = doc['methods']
+    params = [ds[int(i)].params if y == 0 else None for i, y in zip(scenes, labels)]
+    keep = [k for k, (y, q) in enumerate(zip(labels, params))
+            if y == 0 and (args.families is None or q['family'] in args.families)
+            and q['family'] not in args.exclude and exposed_height(q) < args.max_height]
+    if args.lofo is not None:
+        table = json.loads(args.lofo.read_text())['families']['lofo']['obstacle']
+        missing = sorted({params[k]['family'] for k in keep} - set(table))
+        if missing:
+            raise SystemExit(f'{args.lofo}: no model held out {", ".join(missing)}')
+        p = np.array([methods[table[params[k]['family']]['model']][k] for k in keep])
+        scored_by = 'per family, the model that never saw it'
+    else:
+        name = args.method or next(iter(methods))
+        if name not in methods:
+            raise SystemExit(f'{args.scores}: no method {name!r}; there are '
+                             f'{", ".join(methods)}')
+        p = np.asarray(methods[name], np.float64)[keep]
+        scored_by = name
+    rows = [groups(params[k]) for k in keep]
+    tall = np.array([exposed_height(params[k]) >= BAR_HEIGHT for k in keep])
+    report = breakdown(p, rows, tall)
+    print(f'{len(keep)} obstacle scenes of {args.data} ({doc["split"]}), scored by '
+          f'{scored_by}\n')
+    print(markdown(report), end='')
+    if args.json is not None:
+        args.json.write_text(json.dumps({'data': str(args.data), 'scored_by': scored_by,
+                                         'breakdown': report}, indent=1) + '\n',
+                             encoding='utf-8')
+
+
+if __name__ == '__main__':
+    main()
