@@ -1,4 +1,5 @@
-"""What the OOD signal does per family: synth3's test split judged as the assessor judges it.
+"""What the OOD signal (and the guard) do per family: synth3's test split judged as the
+assessor judges it.
 
 For every test scene: the model's P(safe) and penultimate features from one pass, the k-NN
 distance of the features to the model's reference (``NAME.ood.safetensors``), and the rule of
@@ -8,12 +9,22 @@ apart), and among the judged ones the shares of obstacle scenes at P(safe) >= 0.
 of safe scenes flagged, with and without the signal. The test families (never trained on) are
 the ones that say whether it helps on what the model never saw.
 
-    python scripts/ood_families.py MODEL DATA_DIR [--reference REF] [--json OUT] [--workers 2]
+With ``--guard`` the guard runs first, as in the assessor (:mod:`landing_zone.learn.scene_guard`:
+on the counts the scene's cube is cut from, above the tile's ground plane): three conditions,
+the network alone, with the guard (P(safe) capped where it fires) and with the guard and the
+OOD signal, each with the shares above; the JSON gains ``guard`` and ``guard_ood`` beside
+``without`` (the network alone) and ``with`` (the OOD signal alone), and per family the shares
+of safe and obstacle scenes the guard fired on (``fired_safe``, ``fired_unsafe``).
+
+    python scripts/ood_families.py MODEL DATA_DIR [--reference REF] [--guard] [--json OUT] \\
+        [--workers 2]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +60,8 @@ def main() -> None:
     ap.add_argument('--reference', type=Path, default=None)
     ap.add_argument('--json', type=Path, default=None)
     ap.add_argument('--workers', type=int, default=2)
+    ap.add_argument('--guard', action='store_true',
+                    help='also the guard, before the OOD signal as in the assessor')
     args = ap.parse_args()
     net, meta = load_model(args.model)
     ref = load_reference(args.reference or reference_path_for(args.model), meta['weights_sha256'])
@@ -63,31 +76,63 @@ def main() -> None:
     y = y.numpy().astype(np.int64)
     unknown = (p >= 0.5) & (ratio > 1.0)
     none = np.zeros_like(unknown)
+    conditions = {'without': (p, none), 'with': (p, unknown)}
+    fired = None
+    if args.guard:
+        from landing_zone.config import GuardConfig
+        from landing_zone.judging.guard import guard_p_safe
+        from landing_zone.learn.scene_guard import guard_scenes
+        t0 = time.perf_counter()
+        found = guard_scenes(pack, mcfg, tcfg, GuardConfig(), progress=True)
+        print(f'guard: {len(pack)} scenes in {time.perf_counter() - t0:.1f} s', file=sys.stderr)
+        fired = found.fired
+        pg = guard_p_safe(p, found, GuardConfig()).astype(np.float64)
+        conditions['guard'] = (pg, none)
+        conditions['guard_ood'] = (pg, (pg >= 0.5) & (ratio > 1.0))
+
+    def figures(sel: np.ndarray) -> dict:
+        fig = {k: shares(q[sel], y[sel], u[sel]) for k, (q, u) in conditions.items()}
+        if fired is not None:
+            fig['fired_safe'] = float(fired[sel & (y == 1)].mean())
+            fig['fired_unsafe'] = float(fired[sel & (y == 0)].mean())
+        return fig
+
     out: dict = {'model': str(args.model), 'threshold': float(ref.threshold), 'axes': {}}
-    for axis in ('obstacle', 'vegetation'):
+    for axis in ('obstacle', 'vegetation', 'terrain'):
         out['axes'][axis] = {}
         for fam in sorted(set(fams[axis])):
-            sel = fams[axis] == fam
-            out['axes'][axis][fam] = {'without': shares(p[sel], y[sel], none[sel]),
-                                      'with': shares(p[sel], y[sel], unknown[sel]),
+            out['axes'][axis][fam] = {**figures(fams[axis] == fam),
                                       'test_family': bool(axis == 'obstacle'
                                                           and fam in TEST_FAMILIES)}
-    out['all'] = {'without': shares(p, y, none), 'with': shares(p, y, unknown)}
+    out['all'] = figures(np.ones(len(y), bool))
 
     def pct(v: float | None) -> str:
         return '-' if v is None else f'{100 * v:.1f}%'
 
-    print('| family | unknown (safe / obstacle) | obstacle P>=0.5 without -> with | P>=0.9 '
-          'without -> with | safe flagged without -> with |')
-    print('|---|---:|---:|---:|---:|')
     rows = [(f'{a}:{f}' + (' (test family)' if v['test_family'] else ''), v)
             for a, d in out['axes'].items() for f, v in d.items()] + [('all', out['all'])]
-    for name, v in rows:
-        w, o = v['without'], v['with']
-        print(f'| {name} | {pct(o["unknown_safe"])} / {pct(o["unknown_unsafe"])} | '
-              f'{pct(w["unsafe_ge_0.5"])} -> {pct(o["unsafe_ge_0.5"])} | '
-              f'{pct(w["unsafe_ge_0.9"])} -> {pct(o["unsafe_ge_0.9"])} | '
-              f'{pct(w["safe_lt_0.5"])} -> {pct(o["safe_lt_0.5"])} |')
+    if args.guard:
+        print('| family | guard fired (safe / obstacle) | unknown (safe / obstacle), guard + '
+              'OOD | obstacle P>=0.5 net / + guard / + OOD | P>=0.9 net / + guard / + OOD | '
+              'safe flagged net / + guard / + OOD |')
+        print('|---|---:|---:|---:|---:|---:|')
+        for name, v in rows:
+            c = [v[k] for k in ('without', 'guard', 'guard_ood')]
+            print(f'| {name} | {pct(v["fired_safe"])} / {pct(v["fired_unsafe"])} | '
+                  f'{pct(c[2]["unknown_safe"])} / {pct(c[2]["unknown_unsafe"])} | '
+                  + ' | '.join(' / '.join(pct(x[key]) for x in c)
+                               for key in ('unsafe_ge_0.5', 'unsafe_ge_0.9', 'safe_lt_0.5'))
+                  + ' |')
+    else:
+        print('| family | unknown (safe / obstacle) | obstacle P>=0.5 without -> with | P>=0.9 '
+              'without -> with | safe flagged without -> with |')
+        print('|---|---:|---:|---:|---:|')
+        for name, v in rows:
+            w, o = v['without'], v['with']
+            print(f'| {name} | {pct(o["unknown_safe"])} / {pct(o["unknown_unsafe"])} | '
+                  f'{pct(w["unsafe_ge_0.5"])} -> {pct(o["unsafe_ge_0.5"])} | '
+                  f'{pct(w["unsafe_ge_0.9"])} -> {pct(o["unsafe_ge_0.9"])} | '
+                  f'{pct(w["safe_lt_0.5"])} -> {pct(o["safe_lt_0.5"])} |')
     if args.json is not None:
         args.json.write_text(json.dumps(out, indent=1) + '\n', encoding='utf-8')
 

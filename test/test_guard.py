@@ -235,3 +235,24 @@ def test_the_guard_leaves_unknown_tiles_unknown_and_repeats_itself(grass_flight)
     np.testing.assert_array_equal(np.isnan(off.p_safe), np.isnan(a.p_safe))
     np.testing.assert_array_equal(off.p_safe, a.p_net)  # the network's own P(safe)
     assert not off.guard.any()
+
+
+def test_the_guard_on_simulated_patches_fires_on_boxes_not_on_open_ground():
+    """guard_scenes reads the counts the evaluation cube is cut from (patch_counts gives the
+    same cube as scene_to_input) and fires on the toy boxes only (at 4400 returns/m^2)."""
+    from landing_zone.config import TileConfig
+    from landing_zone.judging.tiles import patch_counts, scene_to_input, tiles_from_counts
+    from landing_zone.learn.scene_guard import guard_scenes
+    from landing_zone.learn.scenes import ScenePack
+    from test_train import toy_scene
+    rng = np.random.default_rng(3)
+    scenes = [toy_scene(rng, i % 2 == 0, n=40000) for i in range(6)]
+    mcfg, tcfg = MapConfig(), TileConfig()
+    h, p, lo = patch_counts(scenes[0].points, scenes[0].origins, mcfg, tcfg)
+    cube = tiles_from_counts(h, p, lo, VS, tcfg, np.zeros((1, 2), np.int64)).inputs
+    assert np.array_equal(cube, scene_to_input(scenes[0].points, scenes[0].origins, mcfg,
+                                               tcfg).inputs)
+    found = guard_scenes(ScenePack.from_scenes(scenes), mcfg, tcfg, GuardConfig())
+    labels = np.array([s.label for s in scenes])
+    assert found.fired.tolist() == (labels == 0).tolist()
+    assert np.all(found.hits[labels == 0] >= GuardConfig().min_cluster_hits)

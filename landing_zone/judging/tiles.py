@@ -49,6 +49,7 @@ __all__ = [
     'tiles_from_counts',
     'extract_tiles',
     'scene_to_input',
+    'patch_counts',
     'CountBuffers',
     'PatchVoxelizer',
     'PATCH_Z_MARGIN',
@@ -503,6 +504,21 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
     """
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
+    h, p, lo = patch_counts(points, origins, mcfg, tcfg, yaw, z_shift, voxelizer)
+    batch = tiles_from_counts(h, p, lo, float(mcfg.voxel_size), tcfg, np.zeros((1, 2), np.int64))
+    batch.centers = np.zeros((1, 2))
+    batch.ground_z = batch.ground_z - z_shift
+    return batch
+
+
+def patch_counts(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
+                 tile_cfg: TileConfig | None = None, yaw: float = 0.0, z_shift: float = 0.0,
+                 voxelizer: PatchVoxelizer | None = None) -> tuple[np.ndarray, ...]:
+    """The counts :func:`scene_to_input` cuts its tile from (same arguments), for what else
+    reads a patch's counts (the guard): ``(hits, passes, lo)`` of the 3 x 3 tiles around global
+    tile (0, 0), as :meth:`DensityMap.counts` gives them, z raised by ``z_shift``."""
+    mcfg = map_cfg if map_cfg is not None else MapConfig()
+    tcfg = tile_cfg if tile_cfg is not None else TileConfig()
     if not (math.isfinite(yaw) and math.isfinite(z_shift)):
         raise ConfigError(f'yaw and z_shift must be finite, got {yaw!r} and {z_shift!r}')
     vs = float(mcfg.voxel_size)
@@ -526,8 +542,4 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
         return placed
 
     dmap.integrate(place(points), place(origins))
-    h, p = dmap.counts()
-    batch = tiles_from_counts(h, p, dmap.lo, vs, tcfg, np.zeros((1, 2), np.int64))
-    batch.centers = np.zeros((1, 2))
-    batch.ground_z = batch.ground_z - z_shift
-    return batch
+    return (*dmap.counts(), np.asarray(dmap.lo, np.int64).copy())
