@@ -16,8 +16,8 @@ OOD signal, each with the shares above; the JSON gains ``guard`` and ``guard_ood
 ``without`` (the network alone) and ``with`` (the OOD signal alone), and per family the shares
 of safe and obstacle scenes the guard fired on (``fired_safe``, ``fired_unsafe``).
 
-    python scripts/ood_families.py MODEL DATA_DIR [--reference REF] [--guard] [--json OUT] \\
-        [--workers 2]
+    python scripts/ood_families.py MODEL DATA_DIR [--reference REF] [--guard [--scores S]] \\
+        [--json OUT] [--workers 2]
 """
 from __future__ import annotations
 
@@ -62,6 +62,9 @@ def main() -> None:
     ap.add_argument('--workers', type=int, default=2)
     ap.add_argument('--guard', action='store_true',
                     help='also the guard, before the OOD signal as in the assessor')
+    ap.add_argument('--scores', type=Path, default=None,
+                    help='with --guard: every scene\'s P(safe) by the net and by net + guard, '
+                         'as evaluate --scores writes them (for scripts/pass_breakdown.py)')
     args = ap.parse_args()
     net, meta = load_model(args.model)
     ref = load_reference(args.reference or reference_path_for(args.model), meta['weights_sha256'])
@@ -89,6 +92,14 @@ def main() -> None:
         pg = guard_p_safe(p, found, GuardConfig()).astype(np.float64)
         conditions['guard'] = (pg, none)
         conditions['guard_ood'] = (pg, (pg >= 0.5) & (ratio > 1.0))
+        if args.scores is not None:
+            from types import SimpleNamespace
+
+            from landing_zone.learn.evaluate import scores_json
+            rows = [SimpleNamespace(name='net', scores=p),
+                    SimpleNamespace(name='net + guard', scores=pg)]
+            doc = scores_json(rows, pack.scene_ids.numpy(), y, str(ds.meta.get('dataset')), 'test')
+            args.scores.write_text(json.dumps(doc) + '\n', encoding='utf-8')
 
     def figures(sel: np.ndarray) -> dict:
         fig = {k: shares(q[sel], y[sel], u[sel]) for k, (q, u) in conditions.items()}
