@@ -8,6 +8,7 @@ P(safe) >= 0.5 and >= 0.9 by:
 * exposed height above the ground: the obstacle's height less its burial
   (``obstacle.size[2] - obstacle.embed``), in bands of 10-15, 15-30, 30-60 cm (and below /
   above where there are any);
+* burial (``obstacle.embed``): below 1, 1-3, 3 cm and more;
 * hidden in vegetation or not (``hide``: the vegetation raised to 0.6-1.1 x the exposed
   height around it);
 * placement: wholly inside the tile, or straddling its edge with half its radius inside;
@@ -35,6 +36,7 @@ from typing import Any, Callable
 import numpy as np
 
 HEIGHT_BANDS = (0.10, 0.15, 0.30, 0.60)  # [m] exposed height band edges
+BURIAL_BANDS = (0.01, 0.03)  # [m]; synth3 test obstacles are buried 0-9 cm, a quarter < 0.5 cm
 DENSITY_BANDS = (1700.0, 2900.0)  # [returns/m^2] log-thirds of synth3's 1000-5000
 SENSOR_HEIGHT_BANDS = (8.0, 12.0, 16.0)  # [m] of synth3's 4-20
 BAR_HEIGHT = 0.15  # [m] issue 15's bar starts at obstacles of 15 cm
@@ -61,6 +63,7 @@ def groups(params: dict[str, Any]) -> dict[str, str]:
     s = params['sensor']
     return {
         'exposed height': band(exposed_height(params), HEIGHT_BANDS, cm),
+        'burial': band(float(params['obstacle'].get('embed', 0.0)), BURIAL_BANDS, cm),
         'hidden in vegetation': 'hidden' if params.get('hide') is not None else 'not hidden',
         'placement': 'inside the tile' if params.get('inside') else 'straddling the edge',
         'vegetation': params['vegetation']['family'],
