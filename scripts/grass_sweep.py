@@ -31,7 +31,7 @@ def main() -> int:
     from landing_zone.sim.obstacles import models
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig
-    from landing_zone.judging.tiles import scene_to_input
+    from landing_zone.judging.patches import scene_to_input
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('--scenes', type=int, default=80, help='per density, half unsafe')

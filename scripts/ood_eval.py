@@ -82,7 +82,7 @@ class KNN:
 
 def training_reference(root: Path, scenes: int, model: Any) -> dict[str, np.ndarray]:
     """Features, statistics and labels of up to ``scenes`` training scenes (evenly spread)."""
-    from landing_zone.judging.tiles import scene_to_input
+    from landing_zone.judging.patches import scene_to_input
     from landing_zone.sim.shards import SceneDataset
 
     ds = SceneDataset(root, 'train')

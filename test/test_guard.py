@@ -241,7 +241,8 @@ def test_the_guard_on_simulated_patches_fires_on_boxes_not_on_open_ground():
     """guard_scenes reads the counts the evaluation cube is cut from (patch_counts gives the
     same cube as scene_to_input) and fires on the toy boxes only (at 4400 returns/m^2)."""
     from landing_zone.config import TileConfig
-    from landing_zone.judging.tiles import patch_counts, scene_to_input, tiles_from_counts
+    from landing_zone.judging.patches import patch_counts, scene_to_input
+    from landing_zone.judging.tiles import tiles_from_counts
     from landing_zone.learn.scene_guard import guard_scenes
     from landing_zone.learn.scenes import ScenePack
     from test_train import toy_scene

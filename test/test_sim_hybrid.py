@@ -13,7 +13,7 @@ from landing_zone.sim.shards import SceneDataset
 from landing_zone.sim.flight import flight_config, simulate_flight
 from landing_zone.sim.hybrid import column_rays, simulate_hybrid
 from landing_zone.sim.obstacles import Obstacle, get_model, models
-from landing_zone.judging.tiles import scene_to_input
+from landing_zone.judging.patches import scene_to_input
 from test_insert import slab_hits
 
 

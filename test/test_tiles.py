@@ -6,8 +6,9 @@ import pytest
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
-from landing_zone.judging.tiles import (extract_tiles, scene_to_input, tile_voxels,
-                                        tiles_from_counts, tiles_in_box, widen_tiles)
+from landing_zone.judging.patches import scene_to_input
+from landing_zone.judging.tiles import (extract_tiles, tile_voxels, tiles_from_counts,
+                                        tiles_in_box, widen_tiles)
 
 VS = 0.05
 TV = 20

@@ -11,7 +11,7 @@ from landing_zone.judging.checkpoint import load_model, save_model
 from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from landing_zone.sim.shards import Scene
-from landing_zone.judging.tiles import scene_to_input
+from landing_zone.judging.patches import scene_to_input
 from landing_zone.learn.samples import AugmentedVolumes, EpochSampler, cut_context, voxelize
 from landing_zone.learn.scenes import ScenePack, split_scenes
 from landing_zone.learn.state import log_path, state_path

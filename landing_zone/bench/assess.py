@@ -47,8 +47,8 @@ from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_si
 from landing_zone.judging.inference import Predictor, bf16_supported
 from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.ood import FeatureReference, unit_rows
-from landing_zone.judging.tiles import (CountBuffers, PatchVoxelizer, extract_tiles,
-                                        tile_voxels, widen_tiles)
+from landing_zone.judging.patches import PatchVoxelizer
+from landing_zone.judging.tiles import CountBuffers, extract_tiles, tile_voxels, widen_tiles
 
 from landing_zone.bench.integrate import SENSOR, make_batches
 

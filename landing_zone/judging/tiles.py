@@ -20,9 +20,9 @@ The XY plane is cut on the global tile lattice (tile ``k = floor(x / tile_size)`
    returns fell into its column; other tiles are marked not valid (unknown), never guessed.
 
 The core, :func:`tiles_from_counts`, works on plain count arrays so grids can be built by hand;
-:func:`extract_tiles` reads them from a :class:`~landing_zone.mapping.density_map.DensityMap` and
-:func:`scene_to_input` re-voxelizes one simulated patch exactly as the deployed map would, so the
-network is trained on what it will see.
+:func:`extract_tiles` reads them from a :class:`~landing_zone.mapping.density_map.DensityMap`
+(:mod:`landing_zone.judging.patches` re-voxelizes one simulated patch exactly as the deployed map
+would, so the network is trained on what it will see).
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike
 
-from landing_zone.config import MapConfig, TileConfig
+from landing_zone.config import TileConfig
 from landing_zone.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -48,16 +48,8 @@ __all__ = [
     'widen_tiles',
     'tiles_from_counts',
     'extract_tiles',
-    'scene_to_input',
-    'patch_counts',
     'CountBuffers',
-    'PatchVoxelizer',
-    'PATCH_Z_MARGIN',
 ]
-
-# Extra height [m] the patch map of scene_to_input keeps above and below the cube's reach, for
-# ground that is not exactly at z = 0 (slopes, bumps) in a simulated patch.
-PATCH_Z_MARGIN = 0.5
 
 
 @dataclass
@@ -438,108 +430,3 @@ def extract_tiles(dmap: DensityMap, config: TileConfig | None = None,
     bufs = buffers.get((sx, sy, sz)) if buffers is not None else None
     h, p = dmap.counts(box_lo, box_hi - box_lo, out=bufs)
     return tiles_from_counts(h, p, box_lo, dmap.voxel_size, cfg, idx, pool=pool)
-
-
-class PatchVoxelizer:
-    """Re-voxelizes simulated patches (:func:`scene_to_input`) into small maps it owns.
-
-    One 3 x 3-tile map per voxel size and height, cleared and reused across patches, because
-    building one costs as much as a fifth of integrating a patch. Not thread-safe: one per
-    thread or process (a training set makes its own in each loader worker).
-    """
-
-    def __init__(self) -> None:
-        self._maps: dict[tuple[float, int, int], DensityMap] = {}
-
-    def _map(self, voxel_size: float, tile_vox: int, nz: int) -> DensityMap:
-        from landing_zone.mapping.density_map import DensityMap
-
-        key = (voxel_size, tile_vox, nz)
-        dmap = self._maps.get(key)
-        if dmap is None:
-            cfg = MapConfig(voxel_size=voxel_size, size_xy=3 * tile_vox * voxel_size,
-                            size_z=nz * voxel_size, z_below=0.0, recenter_distance=0.0)
-            # one patch is too small to be worth the map's two-thread split
-            dmap = DensityMap(cfg, parallel=False, tile_vox=tile_vox)
-            self._maps[key] = dmap
-        else:
-            dmap.clear()
-        return dmap
-
-    def __call__(self, points: np.ndarray, origins: np.ndarray,
-                 map_cfg: MapConfig | None = None, tile_cfg: TileConfig | None = None,
-                 yaw: float = 0.0, z_shift: float = 0.0) -> TileBatch:
-        """:func:`scene_to_input` on this voxelizer's maps."""
-        return scene_to_input(points, origins, map_cfg, tile_cfg, yaw, z_shift, voxelizer=self)
-
-
-def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
-                   tile_cfg: TileConfig | None = None, yaw: float = 0.0,
-                   z_shift: float = 0.0, voxelizer: PatchVoxelizer | None = None) -> TileBatch:
-    """Re-voxelize one simulated patch and extract its centre tile, as the deployed map would.
-
-    The patch frame has the tile centred at (0, 0) with the ground near z = 0. Points and
-    origins are rotated by ``yaw`` about the z axis through the tile centre, raised by
-    ``z_shift``, moved by half a tile in x and y onto global tile (0, 0), integrated into a
-    small density map of 3 x 3 tiles (so the padding sees real neighbours), and tile (0, 0) is
-    extracted with :func:`tiles_from_counts`.
-
-    Args:
-        points: (N, 3) returns in the patch frame [m].
-        origins: (3,) or (N, 3) sensor origins of the returns [m].
-        map_cfg: voxel size of the map (only ``voxel_size`` is used); default MapConfig().
-        tile_cfg: tiling parameters; default TileConfig().
-        yaw: rotation about the tile's vertical axis [rad] (augmentation).
-        z_shift: vertical shift [m] (augmentation).
-        voxelizer: whose small map to reuse (callers that voxelize many patches); default a
-            fresh map.
-
-    Returns:
-        A :class:`TileBatch` with one tile; ``index`` is (0, 0), ``centers`` (0, 0) and
-        ``ground_z`` is in the patch frame (the shift undone).
-
-    Raises:
-        InvalidCloudError: malformed points or origins.
-        ConfigError: bad configuration or non-finite yaw / z_shift.
-    """
-    mcfg = map_cfg if map_cfg is not None else MapConfig()
-    tcfg = tile_cfg if tile_cfg is not None else TileConfig()
-    h, p, lo = patch_counts(points, origins, mcfg, tcfg, yaw, z_shift, voxelizer)
-    batch = tiles_from_counts(h, p, lo, float(mcfg.voxel_size), tcfg, np.zeros((1, 2), np.int64))
-    batch.centers = np.zeros((1, 2))
-    batch.ground_z = batch.ground_z - z_shift
-    return batch
-
-
-def patch_counts(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
-                 tile_cfg: TileConfig | None = None, yaw: float = 0.0, z_shift: float = 0.0,
-                 voxelizer: PatchVoxelizer | None = None) -> tuple[np.ndarray, ...]:
-    """The counts :func:`scene_to_input` cuts its tile from (same arguments), for what else
-    reads a patch's counts (the guard): ``(hits, passes, lo)`` of the 3 x 3 tiles around global
-    tile (0, 0), as :meth:`DensityMap.counts` gives them, z raised by ``z_shift``."""
-    mcfg = map_cfg if map_cfg is not None else MapConfig()
-    tcfg = tile_cfg if tile_cfg is not None else TileConfig()
-    if not (math.isfinite(yaw) and math.isfinite(z_shift)):
-        raise ConfigError(f'yaw and z_shift must be finite, got {yaw!r} and {z_shift!r}')
-    vs = float(mcfg.voxel_size)
-    tv = tile_voxels(vs, tcfg)
-    # Vertical reach: the cube (one tile high around the ground), its padding and a margin for
-    # ground that is off z = 0; the window moves with z_shift so its size (and the cached map)
-    # stays the same. Rays outside the window cannot change the extracted cube.
-    reach = tcfg.tile_size / 2 + (tcfg.padding + 1) * vs + PATCH_Z_MARGIN
-    kz = int(math.ceil(reach / vs))
-    dmap = (voxelizer if voxelizer is not None else PatchVoxelizer())._map(vs, tv, 2 * kz)
-    dmap.set_lo(np.array([-tv, -tv, -kz + int(round(z_shift / vs))], np.int64))
-    c, s = math.cos(yaw), math.sin(yaw)
-    offset = np.array([tcfg.tile_size / 2, tcfg.tile_size / 2, z_shift])
-    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-    def place(a: np.ndarray) -> np.ndarray:
-        arr = np.asarray(a, np.float64)
-        if arr.ndim == 0 or arr.shape[-1] != 3:
-            return arr  # let DensityMap.integrate name the problem
-        placed: np.ndarray = arr @ rot.T + offset
-        return placed
-
-    dmap.integrate(place(points), place(origins))
-    return (*dmap.counts(), np.asarray(dmap.lo, np.int64).copy())

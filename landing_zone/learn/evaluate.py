@@ -6,7 +6,7 @@ Run::
     landing-zone evaluate --data data/synth2 --baselines --json results.json
 
 Every method reads the same inputs, the test scenes re-voxelized by
-:func:`landing_zone.judging.tiles.scene_to_input` without augmentation. A method is any object
+:func:`landing_zone.judging.patches.scene_to_input` without augmentation. A method is any object
 with a ``name``, ``score(inputs) -> (T,)`` (higher = safer) and optionally ``fit(train_inputs,
 train_labels)`` and ``probabilistic`` (its scores are P(safe), so an ECE is reported; without
 the attribute, scores that all lie in [0, 1] count as probabilities). The CNN and the baselines

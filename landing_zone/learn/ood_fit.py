@@ -9,7 +9,7 @@ or fresh scenes of the same sweep: ``simulate --seed`` other than the training s
    ``held_out`` of them (whole scenes) set the threshold, the others form the reference;
 2. each scene is voxelized ``views`` times, as training augments it (a yaw uniform in
    [0, 2 pi) about the tile centre, drawn from ``SeedSequence([seed, scene])``), through
-   :func:`~landing_zone.judging.tiles.scene_to_input` with the model's voxel size and tiles;
+   :func:`~landing_zone.judging.patches.scene_to_input` with the model's voxel size and tiles;
 3. the net's features of every valid view go through the same forward pass the assessor runs
    (:meth:`~landing_zone.judging.inference.Predictor.with_features`); the threshold is the
    ``quantile`` of the held-out views' distance to their ``k``-th nearest reference view.
@@ -32,7 +32,7 @@ from landing_zone.errors import ConfigError, DatasetError
 from landing_zone.judging.checkpoint import input_configs, load_model
 from landing_zone.judging.inference import Predictor
 from landing_zone.judging.ood import FeatureReference, fit_reference, save_reference
-from landing_zone.judging.tiles import PatchVoxelizer
+from landing_zone.judging.patches import PatchVoxelizer
 
 __all__ = ['OODFit', 'fit_ood']
 

@@ -1,7 +1,7 @@
 """Training samples: scenes re-voxelized with augmentation, in a seeded order, by loaders.
 
 Sample ``(epoch, scene, copy)`` is one scene's returns re-voxelized by
-:class:`~landing_zone.judging.tiles.PatchVoxelizer` after a random yaw about the tile centre, a
+:class:`~landing_zone.judging.patches.PatchVoxelizer` after a random yaw about the tile centre, a
 random vertical shift and, for some, the context cut beyond a line in the padding
 (:class:`AugmentedVolumes`); its randomness comes from ``SeedSequence([seed, epoch, scene,
 copy])``, not from the worker that makes it. :class:`EpochSampler` orders an epoch from
@@ -21,7 +21,8 @@ from torch.utils.data import DataLoader, Dataset, Sampler
 from tqdm import tqdm
 
 from landing_zone.config import MapConfig, TileConfig
-from landing_zone.judging.tiles import PatchVoxelizer, tile_voxels
+from landing_zone.judging.patches import PatchVoxelizer
+from landing_zone.judging.tiles import tile_voxels
 from landing_zone.learn.scenes import ScenePack
 
 __all__ = ['AugmentedVolumes', 'cut_context', 'EpochSampler', 'make_loader', 'voxelize',

@@ -2,8 +2,8 @@
 
 :func:`landing_zone.judging.guard.solid_structure` reads a map's hit and pass counts. A synth3
 scene is one tile with its neighbourhood, and evaluation judges it from the cube
-:func:`~landing_zone.judging.tiles.scene_to_input` cuts. :func:`guard_scenes` reads the counts
-that cube is cut from (:func:`~landing_zone.judging.tiles.patch_counts`, no augmentation), fits
+:func:`~landing_zone.judging.patches.scene_to_input` cuts. :func:`guard_scenes` reads the counts
+that cube is cut from (:func:`~landing_zone.judging.patches.patch_counts`, no augmentation), fits
 the tile's ground plane as the assessor does (:func:`~landing_zone.judging.ground.fit_ground`)
 and runs the guard on the centre tile above the plane, or above the tiler's ground where there
 is none, only where the tile is valid: what :meth:`landing_zone.assessor.Assessor.finish_assess`
@@ -43,8 +43,8 @@ def guard_scenes(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig,
     """
     from landing_zone.judging.ground import fit_ground
     from landing_zone.judging.guard import GuardResult, solid_structure
-    from landing_zone.judging.tiles import (PatchVoxelizer, patch_counts, tile_voxels,
-                                            tiles_from_counts)
+    from landing_zone.judging.patches import PatchVoxelizer, patch_counts
+    from landing_zone.judging.tiles import tile_voxels, tiles_from_counts
 
     vs = float(map_cfg.voxel_size)
     tv = tile_voxels(vs, tile_cfg)

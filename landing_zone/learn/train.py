@@ -10,7 +10,7 @@ Run::
         --cache-voxels 20                                                     # a GPU box
 
 Every sample is one scene's returns re-voxelized by
-:func:`landing_zone.judging.tiles.scene_to_input` after a random yaw about the tile centre and a
+:func:`landing_zone.judging.patches.scene_to_input` after a random yaw about the tile centre and a
 random vertical shift, so the net sees exactly
 what the deployed map would give it. The randomness of sample ``(epoch, scene, copy)`` comes
 from ``SeedSequence([seed, epoch, scene, copy])``, not from the worker that makes it, and the
