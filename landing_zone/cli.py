@@ -285,6 +285,12 @@ class Device(str, Enum):
     cuda = 'cuda'
 
 
+class Calibration(str, Enum):
+    auto = 'auto'
+    refit = 'refit'
+    guarded = 'guarded'
+
+
 @app.command(help='Train the safety CNN on a dataset\'s train split (augmented on the fly), '
                   'calibrate it on held-out scenes and write it with its configuration.\n\n'
                   'Beside OUT: OUT.train.safetensors (state for --resume), OUT.log.csv.\n\n'
@@ -338,7 +344,19 @@ def train(
     resume: Annotated[bool, typer.Option(
         help='Continue from OUT.train.safetensors if it exists.')] = False,
     init: Annotated[Optional[Path], typer.Option(
-        help='Start from this model\'s weights (same spec).')] = None,
+        help='Start from this model\'s weights (same spec): fine-tuning, e.g. to a site; see '
+             '--leniency-penalty and --calibration.')] = None,
+    leniency_penalty: Annotated[float, typer.Option(
+        help='With --init: weight of a penalty on every obstacle sample the net judges safer '
+             'than the --init model does (the squared excess of its logit), so that adapting '
+             'to a site cannot make it more lenient on obstacles; 0: none.')] = 1.0,
+    calibration: Annotated[Calibration, typer.Option(
+        help='refit: the temperature fitted on the validation scenes (of the training '
+             'families only); guarded: the --init model\'s T and b (fitted out of family by '
+             'landing-zone calibrate), b lowered until, on the validation obstacles of each '
+             '--data, no more pass at P(safe) >= 0.5 or 0.9 and none of the most lenient '
+             'tenth gets a higher P(safe) than under the --init model; auto: guarded with '
+             '--init, else refit.')] = Calibration.auto,
     hold_out: Annotated[Optional[list[str]], typer.Option(
         help='Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
              'terrain:sloped, sensor:rosette; synth3 data); repeat for more.')] = None,
@@ -356,11 +374,13 @@ def train(
                       val_fraction=val_fraction, workers=workers, seed=seed,
                       device=device.value, dropout=dropout, cache_voxels=cache_voxels,
                       edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,
-                      precision=precision, hold_out=list(hold_out or []))
+                      precision=precision, hold_out=list(hold_out or []),
+                      leniency_penalty=leniency_penalty, calibration=calibration.value)
     s = run_train(data, out, cfg, resume=resume, init=init)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
-          f'at temperature {s["temperature"]:.3f}; log {s["log"]}')
+          f'at temperature {s["temperature"]:.3f}, offset {s["offset"]:+.3f} '
+          f'({s["calibration"]}); log {s["log"]}')
 
 
 @app.command(help='Random search over the paper\'s architecture space, resumable from its '

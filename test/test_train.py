@@ -7,7 +7,7 @@ import torch
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
-from landing_zone.judging.checkpoint import load_model, save_model
+from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from landing_zone.sim.shards import Scene
@@ -165,6 +165,55 @@ def test_init_must_match_the_architecture(tmp_path):
     with pytest.raises(ModelError, match='--init model .* is C3-F4-P4-D8'):
         train(toy_scenes(8, seed=7), tmp_path / 'm.safetensors', quick_config(), init=other,
               progress=False)
+
+
+def calibrated_start(tmp_path, scenes):
+    """A toy model with an out-of-family calibration (as landing-zone calibrate leaves it)."""
+    start = tmp_path / 'start.safetensors'
+    train(scenes, start, quick_config(), progress=False)
+    net, meta = load_model(start)
+    net.temperature, net.offset = 0.8, -0.5
+    save_model(start, net, meta)
+    return start
+
+
+def test_fine_tuning_keeps_the_initial_calibration_guarded(tmp_path):
+    scenes = toy_scenes(12, seed=10)
+    start = calibrated_start(tmp_path, scenes)
+    out = tmp_path / 'site.safetensors'
+    s = train(scenes, out, quick_config(lr=0.001), init=start, progress=False)
+    net, meta = load_model(out)
+    assert s['calibration'] == 'guarded' and meta['calibration']['method'] == 'guarded'
+    assert net.temperature == pytest.approx(0.8) and net.offset <= -0.5
+    assert meta['calibration']['initial_model'] == str(start)
+    refit = train(scenes, tmp_path / 'r.safetensors', quick_config(lr=0.001, calibration='refit'),
+                  init=start, progress=False)
+    assert refit['offset'] == 0.0
+    assert 'calibration' not in read_metadata(tmp_path / 'r.safetensors')
+
+
+def test_the_leniency_penalty_acts_only_when_fine_tuning(tmp_path):
+    scenes = toy_scenes(12, seed=11)
+    start = calibrated_start(tmp_path, scenes)
+    # at the first batch the net is the initial one (no penalty); from the second on it is not
+    train(scenes, tmp_path / 'a.safetensors', quick_config(batch_size=4), init=start,
+          progress=False)
+    train(scenes, tmp_path / 'b.safetensors', quick_config(batch_size=4, leniency_penalty=0.0),
+          init=start, progress=False)
+    assert not same_weights(weights(tmp_path / 'a.safetensors'),
+                            weights(tmp_path / 'b.safetensors'))
+    # from scratch there is no initial net to compare with: the weight changes nothing
+    train(scenes, tmp_path / 'c.safetensors', quick_config(), progress=False)
+    train(scenes, tmp_path / 'd.safetensors', quick_config(leniency_penalty=3.0), progress=False)
+    assert same_weights(weights(tmp_path / 'c.safetensors'), weights(tmp_path / 'd.safetensors'))
+
+
+def test_a_guarded_calibration_needs_an_initial_model(tmp_path):
+    with pytest.raises(ConfigError, match='--init'):
+        train(toy_scenes(8, seed=12), tmp_path / 'm.safetensors',
+              quick_config(calibration='guarded'), progress=False)
+    with pytest.raises(ConfigError, match='calibration must be'):
+        quick_config(calibration='platt').validate()
 
 
 @pytest.mark.slow

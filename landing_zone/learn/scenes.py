@@ -18,7 +18,8 @@ from tqdm import tqdm
 
 from landing_zone.errors import DatasetError
 
-__all__ = ['ScenePack', 'split_scenes', 'ConcatScenes', 'open_source', 'labels_of']
+__all__ = ['ScenePack', 'split_scenes', 'ConcatScenes', 'open_source', 'labels_of',
+           'part_of']
 
 
 class ScenePack:
@@ -144,6 +145,18 @@ class ConcatScenes:
             raise IndexError(f'scene {i} out of range ({len(self)} scenes)')
         k = int(np.searchsorted(self._ends, i, side='right'))
         return self.sources[k][i - (int(self._ends[k - 1]) if k else 0)]
+
+
+def part_of(source: Any, positions: np.ndarray) -> np.ndarray:
+    """Which of a :class:`ConcatScenes`' sources each position comes from, also through a
+    subset of one (``.source``, ``.positions``); all 0 for any other source."""
+    positions = np.asarray(positions, np.int64)
+    inner, picked = getattr(source, 'source', None), getattr(source, 'positions', None)
+    if inner is not None and picked is not None:
+        return part_of(inner, np.asarray(picked, np.int64)[positions])
+    if isinstance(source, ConcatScenes):
+        return np.searchsorted(source._ends, positions, side='right').astype(np.int64)
+    return np.zeros(positions.size, np.int64)
 
 
 def open_source(data: Any) -> tuple[Any, str]:

@@ -48,7 +48,7 @@ from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import tile_voxels
 from landing_zone.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
                                         voxelize)
-from landing_zone.learn.scenes import ScenePack, labels_of, open_source, split_scenes
+from landing_zone.learn.scenes import ScenePack, labels_of, open_source, part_of, split_scenes
 from landing_zone.learn.state import load_state, log_path, save_state, state_path, write_log
 
 __all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
@@ -88,6 +88,14 @@ class TrainConfig:
     precision: str = 'auto'
     # families left out of the training scenes, 'AXIS:FAMILY' (synth3; see landing_zone.learn.lofo)
     hold_out: list[str] = field(default_factory=list)
+    # with an initial model (train --init): the weight of the penalty on obstacle samples the
+    # net judges safer than the initial net did (landing_zone.learn.leniency; 0 = none)
+    leniency_penalty: float = 1.0
+    # 'refit': the temperature fitted on the validation scenes; 'guarded': the initial model's
+    # T and b, b lowered until no more validation obstacles pass at 0.5 or 0.9 than under the
+    # initial model (landing_zone.learn.guarded_calibration; needs an initial model); 'auto':
+    # guarded with an initial model, else refit
+    calibration: str = 'auto'
 
     def validate(self) -> None:
         SafetyNetConfig(self.arch, dropout=self.dropout).validate()
@@ -97,7 +105,8 @@ class TrainConfig:
         for name in ('max_samples', 'max_scenes', 'workers', 'seed', 'cache_voxels'):
             if getattr(self, name) < 0:
                 raise ConfigError(f'{name} must be >= 0, got {getattr(self, name)}')
-        for name in ('lr', 'momentum', 'weight_decay', 'z_shift', 'checkpoint_minutes'):
+        for name in ('lr', 'momentum', 'weight_decay', 'z_shift', 'checkpoint_minutes',
+                     'leniency_penalty'):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f'{name} must be a non-negative number, got {v}')
@@ -110,6 +119,9 @@ class TrainConfig:
         if self.precision not in ('auto', 'fp32', 'bf16'):
             raise ConfigError(f"precision must be 'auto', 'fp32' or 'bf16', got "
                               f'{self.precision!r}')
+        if self.calibration not in ('auto', 'refit', 'guarded'):
+            raise ConfigError(f"calibration must be 'auto', 'refit' or 'guarded', got "
+                              f'{self.calibration!r}')
         if not (self.device == 'cpu' or self.device.startswith('cuda')):
             raise ConfigError(f"device must be 'cpu' or 'cuda[:N]', got {self.device!r}")
         if self.device.startswith('cuda') and not torch.cuda.is_available():
@@ -123,7 +135,7 @@ class TrainConfig:
 # the floating-point results).
 _RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment_copies',
                 'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift', 'yaw',
-                'cache_voxels', 'edge_drop', 'hold_out', 'max_scenes')
+                'cache_voxels', 'edge_drop', 'hold_out', 'max_scenes', 'leniency_penalty')
 
 # -----------------------------------------------------------------------------------------------
 # the loop
@@ -148,6 +160,7 @@ class _Data:
     tile_cfg: TileConfig
     val_inputs: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
     val_labels: torch.Tensor = field(default_factory=lambda: torch.zeros(0))
+    val_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def _autocast(device: torch.device, use_bf16: bool):
@@ -179,7 +192,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             beside it (:func:`state_path`, :func:`log_path`).
         config: training parameters; default :class:`TrainConfig()`.
         resume: continue from the training state beside ``out`` if there is one.
-        init: start from the weights of this model (same spec) instead of random ones.
+        init: start from the weights of this model (same spec) instead of random ones; then
+            by default the loss penalises obstacle samples judged safer than this model judges
+            them (``config.leniency_penalty``) and the model keeps its calibration, guarded on
+            the validation obstacles (``config.calibration``).
         map_cfg: voxel size of the inputs (default MapConfig()).
         tile_cfg: tiling of the inputs (default TileConfig()).
         progress: show progress bars on stderr.
@@ -192,6 +208,11 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     """
     cfg = config if config is not None else TrainConfig()
     cfg.validate()
+    calibration = cfg.calibration if cfg.calibration != 'auto' else \
+        ('guarded' if init is not None else 'refit')
+    if calibration == 'guarded' and init is None:
+        raise ConfigError("calibration 'guarded' keeps the initial model's calibration: give "
+                          'an initial model (--init)')
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     mcfg.validate()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
@@ -231,7 +252,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     t_load = time.perf_counter()
     d = _Data(ScenePack.from_scenes(source, train_idx, progress, 'loading train scenes'),
               ScenePack.from_scenes(source, val_idx, progress, 'loading val scenes'),
-              source_name, mcfg, tcfg)
+              source_name, mcfg, tcfg, val_groups=part_of(source, val_idx))
     if cfg.workers:
         d.train.share_memory()
         d.val.share_memory()
@@ -242,6 +263,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     # the net and the optimizer
     torch.manual_seed(cfg.seed)
     model = SafetyNet(SafetyNetConfig(cfg.arch, input_size=side, dropout=cfg.dropout))
+    src = None
     if init is not None:
         src, _ = load_model(init, 'cpu')
         if src.spec != model.spec or src.config.input_size != side:
@@ -249,6 +271,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                              f'inputs, not {model.spec} on {side}^3')
         model.load_state_dict(src.state_dict())
     model = model.to(device=device, memory_format=torch.channels_last_3d)
+    penalty = None
+    if src is not None and cfg.leniency_penalty > 0:
+        from landing_zone.learn.leniency import LeniencyPenalty
+        penalty = LeniencyPenalty(src, cfg.leniency_penalty, device)
     opt = torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum,
                           weight_decay=cfg.weight_decay)
 
@@ -320,7 +346,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                 memory_format=torch.channels_last_3d)  # (B, 1, D, H, W)
             y = y.to(device, non_blocking=True)
             with _autocast(device, use_bf16):
-                _, loss = model(x, y)
+                logits_b, loss = model(x, y)
+                assert loss is not None
+                if penalty is not None:
+                    loss = loss + penalty(x, y, logits_b)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -365,11 +394,30 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     # calibration on the held-out scenes, then the final model
     logits, val_loss, val_auc = _evaluate(model, d.val_inputs, d.val_labels, eval_precision)
     y_val = d.val_labels.numpy()
-    temperature = fit_temperature(logits, y_val) if len(logits) else 1.0
-    model.temperature = temperature
-    p_val = 1.0 / (1.0 + np.exp(-np.asarray(logits, np.float64) / temperature))
+    calibration_meta: dict[str, Any] = {}
+    if calibration == 'guarded':
+        from landing_zone.learn.guarded_calibration import guarded_offset
+        assert src is not None
+        init_logits, _, _ = _evaluate(src.to(device), d.val_inputs, d.val_labels,
+                                      eval_precision)
+        temperature = float(src.temperature)
+        offset, report = guarded_offset(logits, init_logits, y_val, temperature,
+                                        float(src.offset), groups=d.val_groups)
+        calibration_meta = {'calibration': {
+            'method': 'guarded', 'initial_model': str(init),
+            'fitted_on': 'validation scenes with an obstacle, per training source', **report}}
+        if progress:
+            print(f'train: calibration of {init} kept (T {temperature:.3f}), offset '
+                  f'{src.offset:+.3f} -> {offset:+.3f} so that no more validation obstacles '
+                  'pass at P(safe) >= 0.5 or 0.9 than under it', file=sys.stderr)
+    else:
+        temperature = fit_temperature(logits, y_val) if len(logits) else 1.0
+        offset = 0.0
+    model.temperature, model.offset = temperature, offset
+    p_val = 1.0 / (1.0 + np.exp(-(np.asarray(logits, np.float64) / temperature + offset)))
     metrics = {'val_auc': val_auc, 'val_loss': val_loss,
-               'val_nll_calibrated': binary_nll(logits, y_val, temperature) if len(logits)
+               'val_nll_calibrated': binary_nll(logits, y_val, temperature, offset)
+               if len(logits)
                else float('nan'),
                'val_ece': expected_calibration_error(p_val, y_val) if len(logits)
                else float('nan'),
@@ -379,10 +427,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     metrics = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                for k, v in metrics.items()}
     model_cpu = model.to('cpu', memory_format=torch.contiguous_format)
-    model_cpu.temperature = temperature
-    save_model(out, model_cpu, {**meta_common, 'metrics': metrics})
+    model_cpu.temperature, model_cpu.offset = temperature, offset
+    save_model(out, model_cpu, {**meta_common, 'metrics': metrics, **calibration_meta})
     return {'out': str(out), 'state': str(spath), 'log': str(lpath), 'spec': model_cpu.spec,
-            'temperature': temperature, **metrics}
+            'temperature': temperature, 'offset': offset, 'calibration': calibration, **metrics}
 
 
 def train_config_from(**kwargs: Any) -> TrainConfig:

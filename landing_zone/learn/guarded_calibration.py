@@ -1,0 +1,117 @@
+"""The calibration of a fine-tuned model: the initial model's, guarded on reference obstacles.
+
+``train`` fits the temperature on its validation scenes: right for a model trained from
+scratch, wrong for one fine-tuned from a model whose calibration was fitted on families it never
+saw (``landing-zone calibrate``): the refit keeps P(safe) honest on the training families only
+and drops what the initial model knew about unfamiliar ones (measured: the obstacle tiles of
+synth3's test families passed at P(safe) >= 0.9 rose from 49 to 114 of 773). So a fine-tuned
+model keeps the initial model's ``T`` and ``b``, and a guard lowers ``b`` (never raises it)
+until, on reference obstacle tiles (the fine-tuning's validation scenes with an obstacle, of
+every training source apart), it passes no more at each threshold (0.5 and 0.9) than the initial
+model did. Lowering ``b`` keeps the ranking (no AUC changes) and only ever makes tiles less safe.
+
+The reference tiles are the training sources' (rehearsal and site data), never a test set: the
+families held out of every training stay the check, untouched by any fit.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from landing_zone.errors import ConfigError
+
+__all__ = ['THRESHOLDS', 'guarded_offset', 'passes']
+
+THRESHOLDS = (0.5, 0.9)  # the P(safe) a planner acts on; the guard holds at each
+TAIL = 0.1  # share of the most lenient reference obstacles compared rank by rank
+MIN_TAIL = 5  # ranks compared at least (of groups that have as many obstacles)
+FLOOR = 0.1  # P(safe) below which an obstacle rank is not compared: plainly unsafe to a planner
+
+
+def passes(logits, temperature: float, offset: float, threshold: float) -> int:
+    """How many of ``logits`` are given P(safe) = sigmoid(logit / T + b) >= ``threshold``."""
+    z = np.asarray(logits, np.float64).reshape(-1) / temperature + offset
+    return int((z >= np.log(threshold / (1.0 - threshold))).sum())
+
+
+def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: float,
+                   groups=None, thresholds: Sequence[float] = THRESHOLDS,
+                   tail: float = TAIL, floor: float = FLOOR) -> tuple[float, dict[str, Any]]:
+    """The largest offset ``b' <= offset`` under which the fine-tuned net, at temperature ``T``,
+    is no more lenient on the reference obstacle tiles of each group than the initial net at
+    its own ``(T, offset)``.
+
+    Two conditions, in each group: at each threshold, no more obstacle tiles pass; and rank by
+    rank over the most lenient ``tail`` share of them (at least :data:`MIN_TAIL`), the k-th most
+    lenient is given no higher P(safe) than the initial net's k-th, unless below ``floor``. The
+    second sees what the first cannot on a reference set the nets judge well (in-family
+    obstacles: none passed at 0.9 by either), a tail that grew more lenient.
+
+    Args:
+        new_logits: (N,) the fine-tuned net's logits on the reference tiles.
+        init_logits: (N,) the initial net's logits on the same tiles.
+        labels: (N,) 1 safe, 0 unsafe; only the unsafe tiles count.
+        temperature, offset: the initial model's calibration (kept for the fine-tuned one,
+            ``offset`` lowered where needed).
+        groups: (N,) which training source each tile came from (default: one group); the guard
+            holds in each.
+        thresholds: P(safe) levels, each in (0, 1).
+        tail: the share of each group's obstacle tiles compared rank by rank (0: none).
+        floor: P(safe) below which a rank is not compared.
+
+    Returns:
+        ``(b', report)``: the report gives, per group and threshold, the obstacle tiles passed
+        by the initial model and by the fine-tuned one before and after the guard.
+
+    Raises:
+        ConfigError: mismatched lengths, non-finite logits, a bad temperature or threshold.
+    """
+    zn = np.asarray(new_logits, np.float64).reshape(-1)
+    zi = np.asarray(init_logits, np.float64).reshape(-1)
+    y = np.asarray(labels).reshape(-1)
+    g = np.zeros(y.size, np.int64) if groups is None else np.asarray(groups).reshape(-1)
+    if not (zn.size == zi.size == y.size == g.size):
+        raise ConfigError(f'{zn.size} new logits, {zi.size} initial, {y.size} labels, {g.size} '
+                          'groups: one of each per reference tile')
+    if not (np.all(np.isfinite(zn)) and np.all(np.isfinite(zi))):
+        raise ConfigError('logits must be finite')
+    if not (np.isfinite(temperature) and temperature > 0 and np.isfinite(offset)):
+        raise ConfigError(f'bad calibration T {temperature!r}, b {offset!r}')
+    if any(not 0.0 < t < 1.0 for t in (*thresholds, floor)):
+        raise ConfigError(f'thresholds and floor must lie in (0, 1), got {list(thresholds)}, '
+                          f'{floor}')
+    if not 0.0 <= tail <= 1.0:
+        raise ConfigError(f'tail must lie in [0, 1], got {tail}')
+    b = float(offset)
+    report: dict[str, Any] = {'temperature': float(temperature), 'initial_offset': float(offset),
+                              'tail': tail, 'floor': floor, 'n_reference': int(y.size),
+                              'n_reference_unsafe': int((y == 0).sum()), 'groups': []}
+    for group in np.unique(g[y == 0]):
+        sel = (y == 0) & (g == group)
+        # calibrated logits, most lenient first
+        s_new = np.sort(zn[sel] / temperature + offset)[::-1]
+        s_init = np.sort(zi[sel] / temperature + offset)[::-1]
+        for t in thresholds:
+            allowed = passes(zi[sel], temperature, offset, t)
+            if allowed < s_new.size:
+                # pass at most `allowed`: the (allowed+1)-th must fall below logit(t)
+                b = min(b, offset + float(np.nextafter(_logit(t) - s_new[allowed], -np.inf)))
+        m = min(s_new.size, max(MIN_TAIL, int(np.ceil(tail * s_new.size)))) if tail else 0
+        if m:
+            room = np.maximum(s_init[:m], _logit(floor)) - s_new[:m]
+            b = min(b, offset + float(room.min()))
+        report['groups'].append({'group': int(group), 'obstacles': int(sel.sum()),
+                                 'tail_ranks': m})
+    for entry in report['groups']:
+        sel = (y == 0) & (g == entry['group'])
+        entry['passed'] = {str(t): {'initial': passes(zi[sel], temperature, offset, t),
+                                    'unguarded': passes(zn[sel], temperature, offset, t),
+                                    'guarded': passes(zn[sel], temperature, b, t)}
+                           for t in thresholds}
+    report['offset'] = b
+    return b, report
+
+
+def _logit(p: float) -> float:
+    return float(np.log(p / (1.0 - p)))
