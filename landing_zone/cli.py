@@ -300,8 +300,9 @@ class Calibration(str, Enum):
                   '  landing-zone train --data data/synth2 --out m.safetensors --device cuda '
                   '--workers 15 --cache-voxels 20\n\n'
                   '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
-                  '--data synth2_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
-                  'adaptation)\n\n'
+                  '--data synth3_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
+                  'adaptation; never more lenient on obstacles than the --init model: see '
+                  '--leniency-penalty, --calibration)\n\n'
                   '  landing-zone train --data data/synth3 --hold-out obstacle:log --out '
                   'lofo_log.safetensors  (leave one family out)')
 def train(

@@ -24,6 +24,13 @@ Files beside ``--out`` (for ``model.safetensors``):
 - ``model.train.safetensors``: the training state (weights, momentum, RNG, position), written
   after every epoch and every ``checkpoint_minutes``; ``--resume`` continues from it.
 - ``model.log.csv``: one row per epoch: train loss, validation loss and AUC, time.
+
+Fine-tuning (``init``, e.g. to a site: README, "Site adaptation") is conservative by default:
+the loss penalises every obstacle sample the net judges safer than the initial net does
+(:mod:`landing_zone.learn.leniency`), and the model keeps the initial model's calibration
+(fitted on families it never saw), its offset lowered where the validation obstacles need it
+(:mod:`landing_zone.learn.guarded_calibration`); a temperature refitted on the validation
+scenes would hold on the training families only.
 """
 from __future__ import annotations
 
