@@ -355,9 +355,8 @@ def train(
         help='refit: the temperature fitted on the validation scenes (of the training '
              'families only); guarded: the --init model\'s T and b (fitted out of family by '
              'landing-zone calibrate), b lowered until, on the validation obstacles of each '
-             '--data, no more pass at P(safe) >= 0.5 or 0.9 and none of the most lenient '
-             'tenth gets a higher P(safe) than under the --init model; auto: guarded with '
-             '--init, else refit.')] = Calibration.auto,
+             '--data, no more pass at P(safe) >= 0.5 or 0.9 than under the --init model; '
+             'auto: guarded with --init, else refit.')] = Calibration.auto,
     hold_out: Annotated[Optional[list[str]], typer.Option(
         help='Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
              'terrain:sloped, sensor:rosette; synth3 data); repeat for more.')] = None,

@@ -21,12 +21,12 @@ def test_the_initial_net_itself_keeps_its_offset():
     assert b == B and report['offset'] == B
 
 
-def test_a_net_more_lenient_on_obstacles_gets_its_offset_lowered_by_as_much():
+def test_a_net_more_lenient_on_obstacles_passes_no_more_after_the_guard():
     z, y = reference()
-    new = np.where(y == 0, z + 0.5, z)  # every obstacle 0.5 logits safer
+    new = np.where(y == 0, z + 3.0, z)  # every obstacle 3 logits safer
     b, report = guarded_offset(new, z, y, T, B)
-    assert b == pytest.approx(B - 0.5 / T)
-    for t in (0.5, 0.9, 0.3):
+    assert b < B
+    for t in (0.5, 0.9):
         assert passes(new[y == 0], T, b, t) <= passes(z[y == 0], T, B, t)
     assert report['groups'][0]['passed']['0.5']['guarded'] \
         <= report['groups'][0]['passed']['0.5']['initial']
@@ -38,12 +38,13 @@ def test_the_offset_is_never_raised():
     assert b == B
 
 
-def test_the_counts_hold_at_each_threshold_even_without_a_tail():
+def test_a_few_obstacles_judged_surely_safe_are_enough_to_lower_it():
     z, y = reference()
     new = z.copy()
     worst = np.flatnonzero(y == 0)[np.argsort(z[y == 0])[-3:]]
     new[worst] = 10.0  # three obstacles now surely safe
-    b, _ = guarded_offset(new, z, y, T, B, tail=0.0)
+    b, _ = guarded_offset(new, z, y, T, B)
+    assert b < B
     for t in (0.5, 0.9):
         assert passes(new[y == 0], T, b, t) <= passes(z[y == 0], T, B, t)
 
@@ -51,17 +52,17 @@ def test_the_counts_hold_at_each_threshold_even_without_a_tail():
 def test_the_guard_holds_in_every_group():
     z, y = reference()
     g = (np.arange(z.size) // 2) % 2  # obstacles of both groups
-    new = np.where((y == 0) & (g == 1), z + 1.0, z)  # only group 1 more lenient
+    new = np.where((y == 0) & (g == 1), z + 3.0, z)  # only group 1 more lenient
     b, report = guarded_offset(new, z, y, T, B, groups=g)
-    assert b == pytest.approx(B - 1.0 / T)
+    assert b < B
     assert [e['group'] for e in report['groups']] == [0, 1]
-
-
-def test_ranks_below_the_floor_are_free():
-    z, y = reference()
-    new = np.where(y == 0, -30.0, z)
-    new[np.flatnonzero(y == 0)[0]] = -8.0  # more lenient than before, still near P = 0
-    assert guarded_offset(new, np.where(y == 0, -30.0, z), y, T, B)[0] == B
+    for e, sel in zip(report['groups'], (g == 0, g == 1)):
+        assert e['passed']['0.5']['guarded'] <= e['passed']['0.5']['initial']
+        assert e['passed']['0.9']['guarded'] <= e['passed']['0.9']['initial']
+    assert report['groups'][1]['passed']['0.5']['unguarded'] \
+        > report['groups'][1]['passed']['0.5']['initial']
+    # pooled, the group the new net judges as before would have hidden it
+    assert guarded_offset(new, z, y, T, B)[0] >= b
 
 
 def test_bad_input_is_refused():

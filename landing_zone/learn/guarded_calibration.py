@@ -24,9 +24,6 @@ from landing_zone.errors import ConfigError
 __all__ = ['THRESHOLDS', 'guarded_offset', 'passes']
 
 THRESHOLDS = (0.5, 0.9)  # the P(safe) a planner acts on; the guard holds at each
-TAIL = 0.1  # share of the most lenient reference obstacles compared rank by rank
-MIN_TAIL = 5  # ranks compared at least (of groups that have as many obstacles)
-FLOOR = 0.1  # P(safe) below which an obstacle rank is not compared: plainly unsafe to a planner
 
 
 def passes(logits, temperature: float, offset: float, threshold: float) -> int:
@@ -36,17 +33,11 @@ def passes(logits, temperature: float, offset: float, threshold: float) -> int:
 
 
 def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: float,
-                   groups=None, thresholds: Sequence[float] = THRESHOLDS,
-                   tail: float = TAIL, floor: float = FLOOR) -> tuple[float, dict[str, Any]]:
+                   groups=None, thresholds: Sequence[float] = THRESHOLDS
+                   ) -> tuple[float, dict[str, Any]]:
     """The largest offset ``b' <= offset`` under which the fine-tuned net, at temperature ``T``,
-    is no more lenient on the reference obstacle tiles of each group than the initial net at
-    its own ``(T, offset)``.
-
-    Two conditions, in each group: at each threshold, no more obstacle tiles pass; and rank by
-    rank over the most lenient ``tail`` share of them (at least :data:`MIN_TAIL`), the k-th most
-    lenient is given no higher P(safe) than the initial net's k-th, unless below ``floor``. The
-    second sees what the first cannot on a reference set the nets judge well (in-family
-    obstacles: none passed at 0.9 by either), a tail that grew more lenient.
+    passes no more reference obstacle tiles at each threshold, in each group, than the initial
+    net does at its own ``(T, offset)``.
 
     Args:
         new_logits: (N,) the fine-tuned net's logits on the reference tiles.
@@ -57,8 +48,6 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
         groups: (N,) which training source each tile came from (default: one group); the guard
             holds in each.
         thresholds: P(safe) levels, each in (0, 1).
-        tail: the share of each group's obstacle tiles compared rank by rank (0: none).
-        floor: P(safe) below which a rank is not compared.
 
     Returns:
         ``(b', report)``: the report gives, per group and threshold, the obstacle tiles passed
@@ -78,31 +67,24 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
         raise ConfigError('logits must be finite')
     if not (np.isfinite(temperature) and temperature > 0 and np.isfinite(offset)):
         raise ConfigError(f'bad calibration T {temperature!r}, b {offset!r}')
-    if any(not 0.0 < t < 1.0 for t in (*thresholds, floor)):
-        raise ConfigError(f'thresholds and floor must lie in (0, 1), got {list(thresholds)}, '
-                          f'{floor}')
-    if not 0.0 <= tail <= 1.0:
-        raise ConfigError(f'tail must lie in [0, 1], got {tail}')
+    if any(not 0.0 < t < 1.0 for t in thresholds):
+        raise ConfigError(f'thresholds must lie in (0, 1), got {list(thresholds)}')
     b = float(offset)
     report: dict[str, Any] = {'temperature': float(temperature), 'initial_offset': float(offset),
-                              'tail': tail, 'floor': floor, 'n_reference': int(y.size),
+                              'n_reference': int(y.size),
                               'n_reference_unsafe': int((y == 0).sum()), 'groups': []}
     for group in np.unique(g[y == 0]):
         sel = (y == 0) & (g == group)
-        # calibrated logits, most lenient first
-        s_new = np.sort(zn[sel] / temperature + offset)[::-1]
-        s_init = np.sort(zi[sel] / temperature + offset)[::-1]
+        s_new = np.sort(zn[sel] / temperature)[::-1]  # most lenient first
         for t in thresholds:
             allowed = passes(zi[sel], temperature, offset, t)
             if allowed < s_new.size:
                 # pass at most `allowed`: the (allowed+1)-th must fall below logit(t)
-                b = min(b, offset + float(np.nextafter(_logit(t) - s_new[allowed], -np.inf)))
-        m = min(s_new.size, max(MIN_TAIL, int(np.ceil(tail * s_new.size)))) if tail else 0
-        if m:
-            room = np.maximum(s_init[:m], _logit(floor)) - s_new[:m]
-            b = min(b, offset + float(room.min()))
-        report['groups'].append({'group': int(group), 'obstacles': int(sel.sum()),
-                                 'tail_ranks': m})
+                cut = float(np.nextafter(_logit(t) - s_new[allowed], -np.inf))
+                while passes(zn[sel], temperature, cut, t) > allowed:  # rounding
+                    cut = float(np.nextafter(cut, -np.inf))
+                b = min(b, cut)
+        report['groups'].append({'group': int(group), 'obstacles': int(sel.sum())})
     for entry in report['groups']:
         sel = (y == 0) & (g == entry['group'])
         entry['passed'] = {str(t): {'initial': passes(zi[sel], temperature, offset, t),
