@@ -350,7 +350,7 @@ def train(
     leniency_penalty: Annotated[float, typer.Option(
         help='With --init: weight of a penalty on every obstacle sample the net judges safer '
              'than the --init model does (the squared excess of its logit), so that adapting '
-             'to a site cannot make it more lenient on obstacles; 0: none.')] = 1.0,
+             'to a site does not make it more lenient on obstacles; 0: none.')] = 1.0,
     calibration: Annotated[Calibration, typer.Option(
         help='refit: the temperature fitted on the validation scenes (of the training '
              'families only); guarded: the --init model\'s T and b (fitted out of family by '
