@@ -6,7 +6,9 @@
 #   usage: scripts/lofo.sh [WORKDIR]          (default runs/lofo; data in data/synth3*)
 # Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
 # FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); MAX_SCENES, FINAL_MAX_SCENES (an
-# even subset of the scenes, to bound memory: about 16 bytes per return); WORKERS.
+# even subset of the scenes, to bound memory: about 16 bytes per return); WORKERS; SEED (of
+# the final and fold models' initialisation, split and augmentation: another seed gives another ensemble
+# member with its own fold models, the same folds).
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
@@ -22,7 +24,7 @@ test_data=${TEST_DATA:-data/synth3_test}
 epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_SAMPLES:-0}
 max_scenes=${MAX_SCENES:-0}
 workers=${WORKERS:-2}
-folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}
+folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}; seed=${SEED:-0}
 mkdir -p "$work"
 # The train families of synth3 (the test families are never trained on: the final model is
 # their leave-one-out model) and the vegetation families.
@@ -37,7 +39,8 @@ train_one() {  # NAME HOLD-OUT...
     for h in "$@"; do holds+=(--hold-out "$h"); done
     /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train --data "$train_data" \
         --out "$out" "${holds[@]}" --epochs "$epochs" --augment-copies "$copies" \
-        --cache-voxels "$cache" --max-samples "$max_samples" --max-scenes "$max_scenes" --workers "$workers" --resume \
+        --cache-voxels "$cache" --max-samples "$max_samples" --max-scenes "$max_scenes" \
+        --workers "$workers" --seed "$seed" --resume \
         2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
 }
 
