@@ -7,8 +7,8 @@
 # Budget knobs (environment): EPOCHS, COPIES, CACHE, MAX_SAMPLES (the LOFO models) and
 # FINAL_EPOCHS, FINAL_COPIES, FINAL_CACHE (the final model); MAX_SCENES, FINAL_MAX_SCENES (an
 # even subset of the scenes, to bound memory: about 16 bytes per return); WORKERS; SEED (of
-# the final and fold models' initialisation, split and augmentation: another seed gives another ensemble
-# member with its own fold models, the same folds).
+# the final and fold models' initialisation, split and augmentation: another seed gives
+# another ensemble member with its own fold models, the same folds).
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
