@@ -36,6 +36,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from landing_zone.judging.tiles import is_occupied
+
 __all__ = ['TileGround', 'fit_ground', 'slope_deg', 'MIN_GROUND_COLUMNS']
 
 # Share of a tile's voxel columns that must lie on its final plane for the plane to count: a
@@ -147,16 +149,13 @@ def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,
                 if yj < 0 or yj >= ny:
                     continue
                 for k in range(nz):
-                    h = hits[xi, yj, k]
-                    if h > 0:
-                        hf = np.float64(h)
-                        if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
-                            u[n] = (i + 0.5) * vs - half
-                            v[n] = (j + 0.5) * vs - half
-                            z[n] = (k + 0.5) * vs
-                            ci[n] = i * tv + j
-                            n += 1
-                            break
+                    if is_occupied(hits[xi, yj, k], passes[xi, yj, k], occupied):
+                        u[n] = (i + 0.5) * vs - half
+                        v[n] = (j + 0.5) * vs - half
+                        z[n] = (k + 0.5) * vs
+                        ci[n] = i * tv + j
+                        n += 1
+                        break
         plane[t, 0] = plane[t, 1] = plane[t, 2] = math.nan
         rough[t] = math.nan
         clear[t] = math.nan
@@ -208,14 +207,11 @@ def _ground_kernel(hits, passes, lo, tiles, tv, vs, occupied, clutter, min_cols,
                 k0 = max(int(math.ceil((zc + clutter) / vs - 1e-9)), 0)
                 free = nz * vs - zc
                 for k in range(k0, nz):
-                    h = hits[xi, yj, k]
-                    if h > 0:
-                        hf = np.float64(h)
-                        if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
-                            free = k * vs - zc
-                            if free < seen:
-                                seen = free
-                            break
+                    if is_occupied(hits[xi, yj, k], passes[xi, yj, k], occupied):
+                        free = k * vs - zc
+                        if free < seen:
+                            seen = free
+                        break
                 if free < best:
                     best = free
         clear[t] = best

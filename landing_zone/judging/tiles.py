@@ -49,6 +49,7 @@ __all__ = [
     'tiles_from_counts',
     'extract_tiles',
     'CountBuffers',
+    'is_occupied',
 ]
 
 
@@ -139,6 +140,30 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 # --- the compiled kernel -----------------------------------------------------------------------
 
 @nb.njit(cache=True, nogil=True, inline='always')
+def is_occupied(h, p, occupied):  # type: ignore[no-untyped-def]
+    """Whether a voxel of ``h`` hits and ``p`` passes is occupied: hit at least once and its
+    density (h + 1) / (h + p + 2) at least ``occupied`` (the tiler's and the ground planes'
+    test)."""
+    if h == 0:
+        return False
+    hf = np.float64(h)
+    return (hf + 1.0) >= occupied * (hf + np.float64(p) + 2.0)
+
+
+@nb.njit(cache=True, nogil=True, inline='always')
+def _column_values(hits, passes, xi, yj, z0, c0, c1, row):  # type: ignore[no-untyped-def]
+    """One column of an input cube into ``row``: 2 * density - 1 of box voxels
+    ``z0 + [c0, c1)`` of column (xi, yj), 0 (unobserved) elsewhere."""
+    row[:c0] = 0.0
+    row[c1:] = 0.0
+    # branch-free so the compiler vectorizes it
+    for c in range(c0, c1):
+        h = np.float32(hits[xi, yj, z0 + c])
+        p = np.float32(passes[xi, yj, z0 + c])
+        row[c] = (h - p) / (h + p + np.float32(2.0))
+
+
+@nb.njit(cache=True, nogil=True, inline='always')
 def _column_z(z0t, plane, t, a, b, centre, side, nz):  # type: ignore[no-untyped-def]
     """Box z index of cube column (a, b)'s first voxel (sheared along ``plane[t]`` where it is
     finite) and the range [c0, c1) of the column that lies inside the box; the rest reads as
@@ -186,13 +211,10 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                 for k in range(nz):
                     h = hits[xi, yj, k]
                     returns += h
-                    if not found and h > 0:
-                        # occupied: hit at least once and density at least the threshold
-                        hf = np.float64(h)
-                        if (hf + 1.0) >= occupied * (hf + np.float64(passes[xi, yj, k]) + 2.0):
-                            colmin[n] = k
-                            n += 1
-                            found = True
+                    if not found and is_occupied(h, passes[xi, yj, k], occupied):
+                        colmin[n] = k
+                        n += 1
+                        found = True
         nret[t] = returns
         if n == 0:
             ground_k[t] = -(2 ** 62)
@@ -235,13 +257,7 @@ def _tile_kernel(  # type: ignore[no-untyped-def]
                     row[:] = 0.0
                     continue
                 z0, c0, c1 = _column_z(z0t, plane, t, a, b, centre, side, nz)
-                row[:c0] = 0.0
-                row[c1:] = 0.0
-                # branch-free so the compiler vectorizes it
-                for c in range(c0, c1):
-                    h = np.float32(hits[xi, yj, z0 + c])
-                    p = np.float32(passes[xi, yj, z0 + c])
-                    row[c] = (h - p) / (h + p + np.float32(2.0))
+                _column_values(hits, passes, xi, yj, z0, c0, c1, row)
 
 
 @nb.njit(cache=True, nogil=True, inline='always')
@@ -261,12 +277,7 @@ def _pooled_cube(  # type: ignore[no-untyped-def]
                 col[:] = 0.0
             else:
                 z0, c0, c1 = _column_z(z0t, plane, t, a, b, centre, side, nz)
-                col[:c0] = 0.0
-                col[c1:] = 0.0
-                for c in range(c0, c1):
-                    h = np.float32(hits[xi, yj, z0 + c])
-                    p = np.float32(passes[xi, yj, z0 + c])
-                    col[c] = (h - p) / (h + p + np.float32(2.0))
+                _column_values(hits, passes, xi, yj, z0, c0, c1, col)
             row = cube[a // pool, b // pool]
             for q in range(side // pool):
                 m = col[q * pool]
