@@ -377,7 +377,8 @@ class Assessor:
             config: the pipeline's configuration; default :class:`AssessorConfig()`.
             center: (x, y) of a fixed region of interest; overrides ``config.center``. None
                 (and no ``config.center``): the map follows the sensor.
-            model: a loaded :class:`~landing_zone.judging.net.SafetyNet`, or a path to a
+            model: a loaded :class:`~landing_zone.judging.net.SafetyNet` or
+                :class:`~landing_zone.judging.ensemble.SafetyEnsemble`, or a path to a
                 checkpoint; default ``config.model.path``, or the shipped model when that is empty.
 
         Raises:
@@ -433,12 +434,14 @@ class Assessor:
 
     def _load_model(self, model: Any) -> tuple[Any, dict[str, Any], Path | None]:
         from landing_zone.judging.checkpoint import load_model
+        from landing_zone.judging.ensemble import SafetyEnsemble
         from landing_zone.judging.net import SafetyNet
 
-        if isinstance(model, SafetyNet):
+        if isinstance(model, (SafetyNet, SafetyEnsemble)):
             return model.eval(), {}, None
         if model is not None and not isinstance(model, (str, os.PathLike)):
-            raise ModelError(f'model must be a SafetyNet or a path, got {type(model).__name__}')
+            raise ModelError(f'model must be a SafetyNet, a SafetyEnsemble or a path, got '
+                             f'{type(model).__name__}')
         path = Path(model) if model is not None else (
             Path(self.config.model.path) if self.config.model.path else default_model_path())
         net, meta = load_model(path, device=self.config.model.device)

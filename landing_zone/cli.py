@@ -580,6 +580,27 @@ def calibrate(
           f'{100 * s["out_of_family_unsafe_ge_0.5"]["fitted"]:.1f}%')
 
 
+@app.command(help='One model file from trained members of one architecture: the mean of their '
+                  'logits, judged as one net (landing_zone.judging.ensemble). Its metadata lists '
+                  'the members and, as what it held out, the families no member trained on. '
+                  'Calibrate it afterwards (calibrate, with ensembles of members that never saw '
+                  'the families as --fold-model).\n\n'
+                  'Example:\n\n  landing-zone ensemble --member runs/e/final.safetensors '
+                  '--member runs/e/fold0_of_4.safetensors --member '
+                  'runs/e/fold1_of_4.safetensors --out runs/e/ensemble.safetensors')
+def ensemble(
+    member: Annotated[list[Path], typer.Option(help='A member model; repeat for each.')],
+    out: Annotated[Path, typer.Option(help='Ensemble model file to write.')],
+) -> None:
+    from landing_zone.learn.ensembles import assemble
+
+    meta = assemble(member, out)
+    held = meta['training']['hold_out']
+    print(f'wrote {out}: {meta["ensemble"]["members"]} members of {meta["model"]["spec"]}, '
+          f'T {meta["temperature"]:.3f}, offset {meta["calibration_offset"]:+.3f}; no member '
+          f'trained on: {", ".join(held) if held else "(none)"}')
+
+
 # --- fit-ood ----------------------------------------------------------------------------------
 
 @app.command(name='fit-ood',

@@ -12,6 +12,12 @@
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
+# FINAL=FILE takes FILE as the final model instead of training one (the shipped model, say).
+# ENSEMBLE=1 (with FOLDS=K) also trains, for every pair of groups, a model without both, and
+# builds the ensemble of the final and the K fold models (`landing-zone ensemble`) beside
+# its leave-groups-out stand-ins: for group g, the fold model g and the pair models without g,
+# none of which saw g. The ensemble is calibrated on those (`landing-zone calibrate`), which
+# carry that calibration to be judged (models/MODEL_CARD.md, "The shipped ensemble").
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
@@ -45,9 +51,13 @@ train_one() {  # NAME HOLD-OUT...
 }
 
 # the final model first: it is what ships, and it alone already judges the test families
-(epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}; max_samples=0
- max_scenes=${FINAL_MAX_SCENES:-0}
- train_one final)
+if [ -n "${FINAL:-}" ]; then
+    cp -n "$FINAL" "$work/final.safetensors"
+else
+    (epochs=${FINAL_EPOCHS:-4}; copies=${FINAL_COPIES:-6}; cache=${FINAL_CACHE:-3}
+     max_samples=0; max_scenes=${FINAL_MAX_SCENES:-0}
+     train_one final)
+fi
 lofo_models=()
 if [ "$folds" -gt 0 ]; then
     mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
@@ -57,6 +67,38 @@ for g in family_folds($folds, $fold_seed): print(' '.join(g))")
         train_one "fold${k}_of_${folds}" ${groups[$k]}
         lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
     done
+    if [ "${ENSEMBLE:-0}" = 1 ]; then
+        members=(--member "$work/final.safetensors")
+        for g in "${!groups[@]}"; do
+            members+=(--member "$work/fold${g}_of_${folds}.safetensors")
+            stand_in=(--member "$work/fold${g}_of_${folds}.safetensors")
+            for h in "${!groups[@]}"; do
+                [ "$g" = "$h" ] && continue
+                pair="pair$(( g < h ? g : h ))$(( g < h ? h : g ))_of_${folds}"
+                # shellcheck disable=SC2086  # groups are lists of specs
+                train_one "$pair" ${groups[$g]} ${groups[$h]}
+                stand_in+=(--member "$work/$pair.safetensors")
+            done
+            [ -f "$work/ensemble_without${g}.safetensors" ] || "$lz" ensemble "${stand_in[@]}" \
+                --out "$work/ensemble_without${g}.safetensors"
+        done
+        [ -f "$work/ensemble.safetensors" ] || "$lz" ensemble "${members[@]}" \
+            --out "$work/ensemble.safetensors"
+        stand_ins=("$work"/ensemble_without[0-9].safetensors)
+        if [ ! -f "$work/ensemble_cal.safetensors" ]; then
+            fold_args=()
+            for f in "${stand_ins[@]}"; do fold_args+=(--fold-model "$f"); done
+            "$lz" calibrate --model "$work/ensemble.safetensors" "${fold_args[@]}" \
+                --data "$train_data" --workers "$workers" --out "$work/ensemble_cal.safetensors"
+            .venv/bin/python scripts/lofo_calibrated.py "$work/ensemble_cal.safetensors" \
+                "${stand_ins[@]}" --suffix _cal
+        fi
+        ens=(--model "$work/ensemble_cal.safetensors")
+        for g in "${!groups[@]}"; do ens+=(--model "$work/ensemble_without${g}_cal.safetensors"); done
+        "$lz" evaluate --data "$test_data" --by-family "${ens[@]}" --workers "$workers" \
+            --json "$work/ensemble_lofo.json" --scores "$work/ensemble_scores.json" \
+            | tee "$work/ensemble_lofo.md"
+    fi
 else
     fleet=(--engine "${ENGINE:-local}")
     [ -n "${ADDRESS:-}" ] && fleet+=(--address "$ADDRESS")

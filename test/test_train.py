@@ -192,6 +192,30 @@ def test_fine_tuning_keeps_the_initial_calibration_guarded(tmp_path):
     assert 'calibration' not in read_metadata(tmp_path / 'r.safetensors')
 
 
+def test_an_ensemble_is_fine_tuned_as_one_net_and_stays_an_ensemble(tmp_path):
+    from landing_zone.judging.ensemble import SafetyEnsemble
+    from landing_zone.learn.ensembles import assemble
+    scenes = toy_scenes(12, seed=13)
+    a, b = tmp_path / 'a.safetensors', tmp_path / 'b.safetensors'
+    train(scenes, a, quick_config(seed=0), progress=False)
+    train(scenes, b, quick_config(seed=1), progress=False)
+    ens = tmp_path / 'e.safetensors'
+    assemble([a, b], ens)
+    start, meta = load_model(ens)
+    start.temperature, start.offset = 0.9, -0.4
+    save_model(ens, start, meta)
+    out = tmp_path / 'site.safetensors'
+    train(scenes, out, quick_config(lr=0.001), init=ens, progress=False)
+    tuned, tmeta = load_model(out)
+    assert isinstance(tuned, SafetyEnsemble) and tuned.size == 2
+    assert tmeta['calibration']['method'] == 'guarded' and tuned.temperature == pytest.approx(0.9)
+    # every member moved
+    for k in range(2):
+        before = start.members[k].state_dict()
+        after = tuned.members[k].state_dict()
+        assert any(not torch.equal(before[n], after[n]) for n in before)
+
+
 def test_the_leniency_penalty_acts_only_when_fine_tuning(tmp_path):
     scenes = toy_scenes(12, seed=11)
     start = calibrated_start(tmp_path, scenes)

@@ -4,7 +4,9 @@ The weights go through the ``safetensors`` package; the header's metadata holds 
 document with the net's :class:`~landing_zone.judging.net.SafetyNetConfig` (spec, input size,
 dropout), how its inputs were made (voxel size, tile configuration), how it was trained
 (configuration, seed, metrics), the calibration temperature and a SHA-256 of the weights, so a
-damaged file is refused rather than silently mis-scoring tiles. Loading never executes code
+damaged file is refused rather than silently mis-scoring tiles. An ensemble
+(:class:`~landing_zone.judging.ensemble.SafetyEnsemble`) is one file too: its members' weights
+under ``members.K.`` and ``ensemble.members`` = K in the metadata. Loading never executes code
 from the file (safetensors holds raw tensors only; no pickle).
 """
 from __future__ import annotations
@@ -24,6 +26,7 @@ from safetensors.torch import load_file, save_file
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, ModelError
+from landing_zone.judging.ensemble import MAX_MEMBERS, AnyNet, SafetyEnsemble
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 
 __all__ = ['FORMAT', 'save_model', 'load_model', 'read_metadata', 'weights_sha256',
@@ -43,18 +46,18 @@ def _weights_digest(tensors: dict[str, torch.Tensor]) -> str:
     return sha.hexdigest()
 
 
-def _state_tensors(model: SafetyNet) -> dict[str, torch.Tensor]:
+def _state_tensors(model: AnyNet) -> dict[str, torch.Tensor]:
     return {k: v.detach().to('cpu', torch.float32).contiguous()
             for k, v in model.state_dict().items()}
 
 
-def weights_sha256(model: SafetyNet) -> str:
+def weights_sha256(model: AnyNet) -> str:
     """The SHA-256 of a net's weights as :func:`save_model` records it (what an OOD
     reference is bound to, :mod:`landing_zone.judging.ood`)."""
     return _weights_digest(_state_tensors(model))
 
 
-def save_model(path: str | os.PathLike[str], model: SafetyNet,
+def save_model(path: str | os.PathLike[str], model: AnyNet,
                metadata: dict[str, Any] | None = None,
                extra_tensors: dict[str, torch.Tensor] | None = None) -> None:
     """Write the weights and their metadata to a safetensors file (atomically).
@@ -72,6 +75,10 @@ def save_model(path: str | os.PathLike[str], model: SafetyNet,
     meta.update(format=FORMAT, model=asdict(model.config), temperature=float(model.temperature),
                 calibration_offset=float(model.offset),
                 weights_sha256=_weights_digest(tensors))
+    if isinstance(model, SafetyEnsemble):
+        meta['ensemble'] = dict(meta.get('ensemble') or {}, members=model.size)
+    else:
+        meta.pop('ensemble', None)
     if extra_tensors:
         clash = set(extra_tensors) & set(tensors)
         if clash:
@@ -143,9 +150,18 @@ def load_model(path: str | os.PathLike[str], device: str | torch.device = 'cpu',
     """
     p = Path(path)
     meta = read_metadata(p)
+    model: AnyNet
     try:
         cfg = SafetyNetConfig(**meta['model'])
-        model = SafetyNet(cfg)
+        ensemble = meta.get('ensemble')
+        if ensemble is None:
+            model = SafetyNet(cfg)
+        else:
+            k = ensemble.get('members') if isinstance(ensemble, dict) else None
+            if not isinstance(k, int) or not 1 <= k <= MAX_MEMBERS:
+                raise ConfigError(f'ensemble.members must be 1 to {MAX_MEMBERS}, got {k!r}')
+            model = SafetyEnsemble([SafetyNet(SafetyNetConfig(**meta['model']))
+                                    for _ in range(k)])
     except (KeyError, TypeError, ConfigError) as err:
         raise ModelError(f'{p}: bad architecture in metadata ({_one_line(err)})') from err
     try:

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from landing_zone.errors import ConfigError
-from landing_zone.judging.net import SafetyNet
+from landing_zone.judging.ensemble import AnyNet
 
 __all__ = ['Predictor', 'predict', 'bf16_supported', 'usable_cores']
 
@@ -37,7 +37,7 @@ def usable_cores() -> int:
 
 
 class Predictor:
-    """Runs one net for inference; see the module docstring.
+    """Runs one net (or an ensemble judged as one) for inference; see the module docstring.
 
     Args:
         model: the net (its device is used).
@@ -49,7 +49,7 @@ class Predictor:
             p_safe = predictor(volumes)
     """
 
-    def __init__(self, model: SafetyNet, threads: int | None = None) -> None:
+    def __init__(self, model: AnyNet, threads: int | None = None) -> None:
         self.model = model
         want = usable_cores() if threads is None else int(threads)
         self._restore: int | None = None
@@ -57,9 +57,9 @@ class Predictor:
             self._restore = torch.get_num_threads()
             torch.set_num_threads(want)
         self._key: tuple[object, ...] | None = None
-        self._net: SafetyNet | None = None
+        self._net: AnyNet | None = None
 
-    def _inference_copy(self, dtype: torch.dtype, channels_last: bool) -> SafetyNet:
+    def _inference_copy(self, dtype: torch.dtype, channels_last: bool) -> AnyNet:
         """The net in eval mode, cast to ``dtype`` (channels-last if asked); kept until the
         weights change."""
         model = self.model
@@ -184,7 +184,7 @@ class Predictor:
         self.close()
 
 
-def predict(model: SafetyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
+def predict(model: AnyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,
             precision: str = 'auto', logits: bool = False, channels_last: bool = True,
             check_finite: bool = True, pooled: bool = False) -> np.ndarray:
     """P(safe) of a batch of volumes with a one-shot :class:`Predictor` (see its call)."""

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from landing_zone.errors import ConfigError
-from landing_zone.judging.net import SafetyNet
+from landing_zone.judging.ensemble import AnyNet
 
 __all__ = ['LeniencyPenalty']
 
@@ -38,7 +38,7 @@ class LeniencyPenalty:
         device: where the copy runs (the training device).
     """
 
-    def __init__(self, init: SafetyNet, weight: float, device: torch.device) -> None:
+    def __init__(self, init: AnyNet, weight: float, device: torch.device) -> None:
         if not weight > 0:
             raise ConfigError(f'the leniency penalty weight must be positive, got {weight}')
         self.weight = float(weight)

@@ -15,7 +15,7 @@ import torch
 
 from landing_zone.errors import ModelError
 from landing_zone.judging.checkpoint import load_model, save_model
-from landing_zone.judging.net import SafetyNet
+from landing_zone.judging.ensemble import AnyNet
 
 __all__ = ['state_path', 'log_path', 'LOG_FIELDS', 'write_log', 'save_state', 'load_state']
 
@@ -55,7 +55,7 @@ def _rng_tensors(device: torch.device) -> dict[str, torch.Tensor]:
     return out
 
 
-def save_state(path: Path, model: SafetyNet, opt: torch.optim.Optimizer, device: torch.device,
+def save_state(path: Path, model: AnyNet, opt: torch.optim.Optimizer, device: torch.device,
                meta: dict[str, Any]) -> None:
     extra = _rng_tensors(device)
     names = {id(p): n for n, p in model.named_parameters()}
@@ -67,7 +67,7 @@ def save_state(path: Path, model: SafetyNet, opt: torch.optim.Optimizer, device:
     save_model(path, model, {'train_state': meta}, extra_tensors=extra)
 
 
-def load_state(path: Path, model: SafetyNet, opt: torch.optim.Optimizer,
+def load_state(path: Path, model: AnyNet, opt: torch.optim.Optimizer,
                device: torch.device) -> dict[str, Any]:
     saved, meta, extra = load_model(path, device, with_extra=True)
     state = meta.get('train_state')

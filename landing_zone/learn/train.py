@@ -51,6 +51,7 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import bf16_supported, predict
+from landing_zone.judging.ensemble import AnyNet, SafetyEnsemble
 from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import tile_voxels
 from landing_zone.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
@@ -176,7 +177,7 @@ def _autocast(device: torch.device, use_bf16: bool):
     return torch.autocast(device_type=device.type, enabled=False)
 
 
-def _evaluate(model: SafetyNet, inputs: torch.Tensor, labels: torch.Tensor, precision: str
+def _evaluate(model: AnyNet, inputs: torch.Tensor, labels: torch.Tensor, precision: str
               ) -> tuple[np.ndarray, float, float]:
     if len(inputs) == 0:
         return np.zeros(0), float('nan'), float('nan')
@@ -199,7 +200,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             beside it (:func:`state_path`, :func:`log_path`).
         config: training parameters; default :class:`TrainConfig()`.
         resume: continue from the training state beside ``out`` if there is one.
-        init: start from the weights of this model (same spec) instead of random ones; then
+        init: start from the weights of this model (same spec; an ensemble is fine-tuned as
+            one net) instead of random ones; then
             by default the loss penalises obstacle samples judged safer than this model judges
             them (``config.leniency_penalty``) and the model keeps its calibration, guarded on
             the validation obstacles (``config.calibration``).
@@ -269,13 +271,19 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
 
     # the net and the optimizer
     torch.manual_seed(cfg.seed)
-    model = SafetyNet(SafetyNetConfig(cfg.arch, input_size=side, dropout=cfg.dropout))
+    model: AnyNet = SafetyNet(SafetyNetConfig(cfg.arch, input_size=side, dropout=cfg.dropout))
     src = None
     if init is not None:
         src, _ = load_model(init, 'cpu')
         if src.spec != model.spec or src.config.input_size != side:
             raise ModelError(f'--init model {init} is {src.spec} on {src.config.input_size}^3 '
                              f'inputs, not {model.spec} on {side}^3')
+        if isinstance(src, SafetyEnsemble):
+            # an ensemble is fine-tuned as one net: the loss on its mean logit moves every
+            # member (each keeps its own dropout)
+            model = SafetyEnsemble([SafetyNet(SafetyNetConfig(cfg.arch, input_size=side,
+                                                              dropout=cfg.dropout))
+                                    for _ in range(src.size)])
         model.load_state_dict(src.state_dict())
     model = model.to(device=device, memory_format=torch.channels_last_3d)
     penalty = None
