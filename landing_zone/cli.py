@@ -316,6 +316,9 @@ def train(
         show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
     lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
+    lr_schedule: Annotated[str, typer.Option(
+        help="'constant' (the paper's) or 'cosine' (the rate falls to 0 over the run).")
+    ] = 'constant',
     momentum: Annotated[float, typer.Option(help='SGD momentum.')] = 0.9,
     weight_decay: Annotated[float, typer.Option(help='L2 penalty.')] = 5e-4,
     batch_size: Annotated[int, typer.Option(help='Samples per minibatch.')] = 20,
@@ -367,7 +370,7 @@ def train(
 
     if arch is None:
         arch = read_metadata(init)['model']['spec'] if init is not None else DEFAULT_SPEC
-    cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, momentum=momentum,
+    cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, lr_schedule=lr_schedule, momentum=momentum,
                       weight_decay=weight_decay, batch_size=batch_size,
                       augment_copies=augment_copies, max_samples=max_samples,
                       max_scenes=max_scenes,

@@ -14,10 +14,11 @@
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
 # FINAL=FILE takes FILE as the final model instead of training one (the shipped model, say).
 # ENSEMBLE=1 (with FOLDS=K) also trains, for every pair of groups, a model without both, and
-# builds the ensemble of the final and the K fold models (`landing-zone ensemble`) beside
-# its leave-groups-out stand-ins: for group g, the fold model g and the pair models without g,
-# none of which saw g. The ensemble is calibrated on those (`landing-zone calibrate`), which
-# carry that calibration to be judged (models/MODEL_CARD.md, "The shipped ensemble").
+# builds the ensemble of the K fold models (`landing-zone ensemble`: every family was seen by
+# K - 1 of them) beside its leave-groups-out stand-ins: for group g, the fold model g and the
+# pair models without g, K members none of which saw g. The ensemble is calibrated on those
+# (`landing-zone calibrate`), which carry that calibration to be judged
+# (models/MODEL_CARD.md, "The shipped ensemble").
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
@@ -68,7 +69,7 @@ for g in family_folds($folds, $fold_seed): print(' '.join(g))")
         lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
     done
     if [ "${ENSEMBLE:-0}" = 1 ]; then
-        members=(--member "$work/final.safetensors")
+        members=()
         for g in "${!groups[@]}"; do
             members+=(--member "$work/fold${g}_of_${folds}.safetensors")
             stand_in=(--member "$work/fold${g}_of_${folds}.safetensors")

@@ -15,6 +15,7 @@ The members' own calibrations are not used: the ensemble's mean logit gets its o
 from __future__ import annotations
 
 import os
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -30,7 +31,8 @@ def assemble(members: Sequence[str | os.PathLike], out: str | os.PathLike) -> di
         ConfigError: fewer than two members, or members of other inputs or architectures.
         ModelError: a member that is no readable model.
     """
-    from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+    from landing_zone.judging.checkpoint import (input_configs, load_model, read_metadata,
+                                                 save_model)
     from landing_zone.judging.ensemble import SafetyEnsemble
     from landing_zone.judging.net import SafetyNet
     from landing_zone.learn.lofo import parse_hold_out
@@ -46,7 +48,7 @@ def assemble(members: Sequence[str | os.PathLike], out: str | os.PathLike) -> di
         net, meta = load_model(path)
         if not isinstance(net, SafetyNet):
             raise ConfigError(f'{path} is an ensemble itself; give its members')
-        made = (meta.get('voxel_size'), meta.get('tiles'))
+        made = input_configs(meta)  # the defaults where a file predates a setting
         if inputs is None:
             inputs = made
         elif made != inputs:
@@ -61,7 +63,8 @@ def assemble(members: Sequence[str | os.PathLike], out: str | os.PathLike) -> di
                         'seed': training.get('seed'), 'spec': net.spec})
         nets.append(net)
     ensemble = SafetyEnsemble(nets)  # refuses members of different architectures
-    voxel_size, tiles = inputs if inputs is not None else (None, None)
+    assert inputs is not None
+    voxel_size, tiles = inputs[0].voxel_size, asdict(inputs[1])
     hold = sorted(f'{a}:{f}' for a, f in (held or set()))
     meta_out: dict[str, Any] = {
         'voxel_size': voxel_size, 'tiles': tiles, 'datasets': sorted(datasets),

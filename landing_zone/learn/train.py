@@ -72,6 +72,9 @@ class TrainConfig:
     arch: str = DEFAULT_SPEC  # network spec (model.parse_spec)
     epochs: int = 6
     lr: float = 0.01  # SGD learning rate
+    # 'constant' (the paper's) or 'cosine': lr * (1 + cos(pi * t)) / 2 over the run's batches,
+    # t from 0 to 1 (a function of the batch count, so a resumed run continues it exactly)
+    lr_schedule: str = 'constant'
     momentum: float = 0.9
     weight_decay: float = 5e-4  # L2 penalty
     batch_size: int = 20
@@ -120,6 +123,9 @@ class TrainConfig:
                 raise ConfigError(f'{name} must be a non-negative number, got {v}')
         if self.lr <= 0:
             raise ConfigError(f'lr must be positive, got {self.lr}')
+        if self.lr_schedule not in ('constant', 'cosine'):
+            raise ConfigError(f"lr_schedule must be 'constant' or 'cosine', got "
+                              f'{self.lr_schedule!r}')
         if not 0.0 <= self.edge_drop <= 1.0:
             raise ConfigError(f'edge_drop must lie in [0, 1], got {self.edge_drop}')
         if not 0.0 <= self.val_fraction < 1.0:
@@ -141,9 +147,9 @@ class TrainConfig:
 # Fields that must match for --resume to continue a run (epochs may grow; workers, device,
 # precision and checkpointing may change, though a different device or thread count changes
 # the floating-point results).
-_RESUME_KEYS = ('arch', 'lr', 'momentum', 'weight_decay', 'batch_size', 'augment_copies',
-                'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift', 'yaw',
-                'cache_voxels', 'edge_drop', 'hold_out', 'max_scenes', 'leniency_penalty')
+_RESUME_KEYS = ('arch', 'lr', 'lr_schedule', 'momentum', 'weight_decay', 'batch_size',
+                'augment_copies', 'max_samples', 'val_fraction', 'seed', 'dropout', 'z_shift',
+                'yaw', 'cache_voxels', 'edge_drop', 'hold_out', 'max_scenes', 'leniency_penalty')
 
 # -----------------------------------------------------------------------------------------------
 # the loop
@@ -343,6 +349,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         sampler.set_epoch(epoch, start)
         model.train()
         n_batches = math.ceil(len(sampler) / cfg.batch_size)
+        total_batches = n_batches * cfg.epochs
         bar = tqdm(total=n_batches, desc=f'epoch {epoch + 1}/{cfg.epochs}', unit='batch',
                    file=sys.stderr, disable=not progress)
         t_epoch = time.perf_counter()
@@ -360,6 +367,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             x = x.to(device, non_blocking=True).contiguous(
                 memory_format=torch.channels_last_3d)  # (B, 1, D, H, W)
             y = y.to(device, non_blocking=True)
+            if cfg.lr_schedule == 'cosine':
+                t = (epoch * n_batches + run['step']) / total_batches
+                for group in opt.param_groups:
+                    group['lr'] = cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(t, 1.0)))
             with _autocast(device, use_bf16):
                 logits_b, loss = model(x, y)
                 assert loss is not None
