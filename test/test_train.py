@@ -151,6 +151,40 @@ def test_resume_within_an_epoch_continues_exactly(tmp_path, monkeypatch):
     assert same_weights(weights(tmp_path / 'full.safetensors'), weights(part))
 
 
+def test_the_cosine_schedule_is_its_own_run_and_resumes_exactly(tmp_path, monkeypatch):
+    scenes = toy_scenes(16, seed=5)
+    cfg = quick_config(epochs=2, batch_size=4, dropout=0.5, lr_schedule='cosine')
+    full = tmp_path / 'full.safetensors'
+    train(scenes, full, cfg, progress=False)
+    train(scenes, tmp_path / 'flat.safetensors', quick_config(epochs=2, batch_size=4,
+                                                              dropout=0.5), progress=False)
+    assert not same_weights(weights(full), weights(tmp_path / 'flat.safetensors'))
+    part = tmp_path / 'part.safetensors'
+    calls = {'n': 0}
+    original = AugmentedVolumes.__getitem__
+
+    def dying(self, key):
+        if self.augment:
+            calls['n'] += 1
+            if calls['n'] > 4 * 5:  # killed in the second epoch
+                raise KeyboardInterrupt
+        return original(self, key)
+
+    monkeypatch.setattr(AugmentedVolumes, '__getitem__', dying)
+    with pytest.raises(KeyboardInterrupt):
+        train(scenes, part, quick_config(epochs=2, batch_size=4, dropout=0.5,
+                                         lr_schedule='cosine', checkpoint_minutes=1e-9),
+              progress=False)
+    monkeypatch.setattr(AugmentedVolumes, '__getitem__', original)
+    with pytest.raises(ConfigError, match='--resume: epochs was 2'):
+        train(scenes, part, quick_config(epochs=3, batch_size=4, dropout=0.5,
+                                         lr_schedule='cosine'), resume=True, progress=False)
+    train(scenes, part, cfg, resume=True, progress=False)
+    assert same_weights(weights(full), weights(part))
+    with pytest.raises(ConfigError, match="lr_schedule must be 'constant' or 'cosine'"):
+        quick_config(lr_schedule='step').validate()
+
+
 def test_resume_with_other_settings_is_refused(tmp_path):
     scenes = toy_scenes(8, seed=6)
     out = tmp_path / 'm.safetensors'

@@ -305,7 +305,9 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     if resume and spath.exists():
         state = load_state(spath, model, opt, device)
         old = state.get('config', {})
-        for key in _RESUME_KEYS:
+        # the cosine schedule spans the run's epochs: another count would bend it
+        keys = _RESUME_KEYS + (('epochs',) if cfg.lr_schedule == 'cosine' else ())
+        for key in keys:
             if key in old and old[key] != getattr(cfg, key):
                 raise ConfigError(f'--resume: {key} was {old[key]!r} in {spath}, now '
                                   f'{getattr(cfg, key)!r}; use the same value or another --out')
@@ -349,7 +351,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         sampler.set_epoch(epoch, start)
         model.train()
         n_batches = math.ceil(len(sampler) / cfg.batch_size)
-        total_batches = n_batches * cfg.epochs
+        # the schedule's clock: batches of whole epochs (a resumed epoch's sampler is shorter)
+        per_epoch = math.ceil((len(sampler) + start) / cfg.batch_size)
         bar = tqdm(total=n_batches, desc=f'epoch {epoch + 1}/{cfg.epochs}', unit='batch',
                    file=sys.stderr, disable=not progress)
         t_epoch = time.perf_counter()
@@ -368,7 +371,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                 memory_format=torch.channels_last_3d)  # (B, 1, D, H, W)
             y = y.to(device, non_blocking=True)
             if cfg.lr_schedule == 'cosine':
-                t = (epoch * n_batches + run['step']) / total_batches
+                t = (epoch * per_epoch + run['step']) / (per_epoch * cfg.epochs)
                 for group in opt.param_groups:
                     group['lr'] = cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(t, 1.0)))
             with _autocast(device, use_bf16):
