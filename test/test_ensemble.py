@@ -148,3 +148,25 @@ def test_the_ensemble_command_writes_one_file_or_says_what_is_wrong_in_one_line(
     assert res.returncode == 2 and 'Traceback' not in res.stderr
     assert res.stderr.strip().splitlines() == [
         f'landing-zone: error: model file not found: {tmp_path / "missing.safetensors"}']
+
+
+def test_the_assessor_judges_with_an_ensemble_file_as_with_one_net(tmp_path):
+    from test_assessor import SENSORS, fly, make_model, small_config
+
+    from landing_zone.assessor import Assessor
+    from landing_zone.judging.tiles import extract_tiles
+
+    members = [make_model(tmp_path / f'm{k}.safetensors', seed=k) for k in range(2)]
+    out = tmp_path / 'e.safetensors'
+    assemble(members, out)
+    a = Assessor(small_config(), model=out)
+    assert isinstance(a.model, SafetyEnsemble)
+    fly(a, np.random.default_rng(3), SENSORS, half=2.5)
+    r = a.assess()
+    known = r.known
+    assert 0 < known.sum() < 64
+    batch = extract_tiles(a.map, a.config.tiles, r.index)
+    x = batch.inputs[batch.valid]
+    raw = np.mean([predict(load_model(m)[0], x, logits=True) for m in members], axis=0)
+    np.testing.assert_allclose(r.p_safe[known], 1 / (1 + np.exp(-raw)), atol=1e-5)
+    a.close()
