@@ -21,6 +21,8 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
   and feeds them): ms per tile in a batch and seconds per map (extraction + network);
 - re-assessing only the tiles a new batch of returns touched (the map's dirty tiles, widened by
   one tile since inputs reach into the neighbours' padding);
+- the nets of ensembles of 1, 3 and 5 copies of the shipped net on the map's and the strip's
+  tiles (what each member costs, :mod:`landing_zone.judging.ensemble`);
 - for reference, a training step (forward + backward + SGD, batch 20) and the data pipeline
   (re-voxelizing one 26k-return patch, one process).
 
@@ -41,6 +43,7 @@ import torch
 from landing_zone.config import GuardConfig, MapConfig, SiteConfig, TileConfig
 from landing_zone.mapping.density_map import DensityMap
 from landing_zone.judging.checkpoint import load_model
+from landing_zone.judging.ensemble import SafetyEnsemble
 from landing_zone.judging.ground import fit_ground
 from landing_zone.judging.guard import solid_structure
 from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_sites
@@ -139,6 +142,31 @@ def _train_step_ms(spec: str, precision: str, repeats: int = 3) -> tuple[float, 
 
     med, best = _times(step, repeats)
     return med / 20 * 1e3, best / 20 * 1e3
+
+
+def _ensemble_rows(net: SafetyNet | SafetyEnsemble, pooled: np.ndarray, strip_tiles: int,
+                   repeats: int) -> dict[str, dict[str, float]]:
+    """Seconds of the nets alone (with their features, fp32 channels-last, pooled inputs) for
+    ensembles of 1, 3 and 5 copies of the shipped net's first member: the cost of members
+    (:mod:`landing_zone.judging.ensemble`), on the map's tiles and on a strip's."""
+    import copy
+
+    first = net.members[0] if isinstance(net, SafetyEnsemble) else net
+    out = {}
+    print(f'\nensembles of {first.spec} (members in turn, fp32 channels-last, pooled inputs, '
+          'with features; the nets alone):')
+    for k in (1, 3, 5):
+        model = first if k == 1 else SafetyEnsemble([copy.deepcopy(first)
+                                                     for _ in range(k)]).eval()
+        with Predictor(model) as predictor:
+            full, _ = _times(lambda: predictor.with_features(pooled, 256, 'fp32',
+                                                             pooled=True), repeats)
+            part, _ = _times(lambda: predictor.with_features(pooled[:strip_tiles], 256,
+                                                             'fp32', pooled=True), repeats)
+        out[str(k)] = {'map_s': full, 'strip_s': part}
+        print(f'  {k} member{"s" if k > 1 else " "}: {full:.3f} s per {len(pooled)} tiles, '
+              f'{part:.3f} s per {strip_tiles}')
+    return out
 
 
 def run(batches: int = 30, seed: int = 0) -> dict:
@@ -305,6 +333,9 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         print(f'  {spec}{" + OOD" if ref is not None else ""}: {med:.3f} s ({best:.3f}) against '
               f'{results[spec]["map_s"]:.3f} s for the whole map; target <= {TARGET_STRIP_S} s '
               f'{verdict}')
+
+    # ensembles of the shipped architecture: what each member adds to a map and to a strip
+    results['ensemble_s'] = _ensemble_rows(nets[DEFAULT_SPEC], pooled, len(wide), repeats)
 
     # training and data, for reference
     print('\ntraining step, batch 20, forward + backward + SGD, channels-last:')
