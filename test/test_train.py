@@ -125,27 +125,33 @@ def test_resume_after_an_epoch_continues_exactly(tmp_path):
         assert [int(r['epoch']) for r in csv.DictReader(f)] == [1, 2]
 
 
-def test_resume_within_an_epoch_continues_exactly(tmp_path, monkeypatch):
-    scenes = toy_scenes(16, seed=5)
-    cfg = quick_config(epochs=1, batch_size=4, dropout=0.5)
-    train(scenes, tmp_path / 'full.safetensors', cfg, progress=False)
-    # the same run, killed at the 5th batch; the state is saved after every batch
-    part = tmp_path / 'part.safetensors'
+def killed_run(monkeypatch, scenes, out, samples, cfg):
+    """Train ``out`` with ``cfg`` until the data loader has drawn ``samples`` augmented
+    samples, then die as an interrupted process would (the training state stays)."""
     calls = {'n': 0}
     original = AugmentedVolumes.__getitem__
 
     def dying(self, key):
         if self.augment:
             calls['n'] += 1
-            if calls['n'] > 4 * 4:
+            if calls['n'] > samples:
                 raise KeyboardInterrupt
         return original(self, key)
 
     monkeypatch.setattr(AugmentedVolumes, '__getitem__', dying)
     with pytest.raises(KeyboardInterrupt):
-        train(scenes, part, quick_config(epochs=1, batch_size=4, dropout=0.5,
-                                         checkpoint_minutes=1e-9), progress=False)
+        train(scenes, out, cfg, progress=False)
     monkeypatch.setattr(AugmentedVolumes, '__getitem__', original)
+
+
+def test_resume_within_an_epoch_continues_exactly(tmp_path, monkeypatch):
+    scenes = toy_scenes(16, seed=5)
+    cfg = quick_config(epochs=1, batch_size=4, dropout=0.5)
+    train(scenes, tmp_path / 'full.safetensors', cfg, progress=False)
+    # the same run, killed at the 5th batch; the state is saved after every batch
+    part = tmp_path / 'part.safetensors'
+    killed_run(monkeypatch, scenes, part, 4 * 4, quick_config(
+        epochs=1, batch_size=4, dropout=0.5, checkpoint_minutes=1e-9))
     assert not part.exists() and state_path(part).exists()
     train(scenes, part, cfg, resume=True, progress=False)
     assert same_weights(weights(tmp_path / 'full.safetensors'), weights(part))
@@ -160,22 +166,8 @@ def test_the_cosine_schedule_is_its_own_run_and_resumes_exactly(tmp_path, monkey
                                                               dropout=0.5), progress=False)
     assert not same_weights(weights(full), weights(tmp_path / 'flat.safetensors'))
     part = tmp_path / 'part.safetensors'
-    calls = {'n': 0}
-    original = AugmentedVolumes.__getitem__
-
-    def dying(self, key):
-        if self.augment:
-            calls['n'] += 1
-            if calls['n'] > 4 * 5:  # killed in the second epoch
-                raise KeyboardInterrupt
-        return original(self, key)
-
-    monkeypatch.setattr(AugmentedVolumes, '__getitem__', dying)
-    with pytest.raises(KeyboardInterrupt):
-        train(scenes, part, quick_config(epochs=2, batch_size=4, dropout=0.5,
-                                         lr_schedule='cosine', checkpoint_minutes=1e-9),
-              progress=False)
-    monkeypatch.setattr(AugmentedVolumes, '__getitem__', original)
+    killed_run(monkeypatch, scenes, part, 4 * 5, quick_config(
+        epochs=2, batch_size=4, dropout=0.5, lr_schedule='cosine', checkpoint_minutes=1e-9))
     with pytest.raises(ConfigError, match='--resume: epochs was 2'):
         train(scenes, part, quick_config(epochs=3, batch_size=4, dropout=0.5,
                                          lr_schedule='cosine'), resume=True, progress=False)

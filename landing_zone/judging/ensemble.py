@@ -22,10 +22,9 @@ from typing import Sequence, Union
 
 import torch
 from torch import nn
-from torch.nn import functional as F
 
 from landing_zone.errors import ConfigError
-from landing_zone.judging.net import SafetyNet, SafetyNetConfig
+from landing_zone.judging.net import SafetyNet, SafetyNetConfig, judge
 
 __all__ = ['SafetyEnsemble', 'EnsembleHead', 'AnyNet', 'MAX_MEMBERS']
 
@@ -98,11 +97,7 @@ class SafetyEnsemble(nn.Module):
     def forward(self, x: torch.Tensor, targets: torch.Tensor | None = None,
                 pooled: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Mean logit (B,) of the members, and the mean binary cross-entropy if targets."""
-        logits = self.head(self.embed(x, pooled)).squeeze(1)  # (B,)
-        loss = None
-        if targets is not None:
-            loss = F.binary_cross_entropy_with_logits(logits.float(), targets.float())
-        return logits, loss
+        return judge(self, x, targets, pooled)
 
     def flops(self) -> int:
         """Multiply-adds of one forward pass for one volume (every member)."""

@@ -10,6 +10,7 @@ inference in :mod:`.inference`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import nn
@@ -24,6 +25,7 @@ __all__ = [
     'FAST_SPEC',
     'SafetyNetConfig',
     'SafetyNet',
+    'judge',
 ]
 
 # The paper's best network (its Table II); models/paper_C7-F32-P2-C5-F64-P2-D512.safetensors.
@@ -194,11 +196,7 @@ class SafetyNet(nn.Module):
                 pooled: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Logits (B,) of P(safe), and the mean binary cross-entropy if targets (1 = safe);
         ``pooled`` as in :meth:`embed`."""
-        logits = self.head(self.embed(x, pooled)).squeeze(1)  # (B,)
-        loss = None
-        if targets is not None:
-            loss = F.binary_cross_entropy_with_logits(logits.float(), targets.float())
-        return logits, loss
+        return judge(self, x, targets, pooled)
 
     def flops(self) -> int:
         """Multiply-adds of one forward pass for one volume."""
@@ -215,3 +213,15 @@ class SafetyNet(nn.Module):
 
     def num_params(self) -> int:
         return sum(p.numel() for p in self.parameters())
+
+
+def judge(net: Any, x: torch.Tensor, targets: torch.Tensor | None = None,
+          pooled: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The forward pass every safety net shares (a :class:`SafetyNet` or an ensemble of them):
+    the logits (B,) of its ``head`` over its ``embed``, and the mean binary cross-entropy if
+    targets (1 = safe)."""
+    logits: torch.Tensor = net.head(net.embed(x, pooled)).squeeze(1)  # (B,)
+    loss = None
+    if targets is not None:
+        loss = F.binary_cross_entropy_with_logits(logits.float(), targets.float())
+    return logits, loss
