@@ -107,6 +107,7 @@ def test_assemble_records_its_members_and_what_none_of_them_saw(tmp_path):
     assert [m['file'] for m in meta['ensemble']['member_files']] == ['m1.safetensors',
                                                                      'm2.safetensors']
     assert (meta['temperature'], meta['calibration_offset']) == (1.0, 0.0)
+    assert 'calibration' not in meta  # nothing fitted yet: lofo_calibrated.py refuses to copy it
     assert assemble(paths, tmp_path / 'all.safetensors')['training']['hold_out'] == []
     net, _ = load_model(tmp_path / 'e.safetensors')
     x = volumes(2)

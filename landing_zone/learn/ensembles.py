@@ -70,7 +70,6 @@ def assemble(members: Sequence[str | os.PathLike], out: str | os.PathLike) -> di
         'voxel_size': voxel_size, 'tiles': tiles, 'datasets': sorted(datasets),
         'training': {'hold_out': hold, 'kind': 'ensemble (mean logit of the members)'},
         'ensemble': {'members': len(nets), 'member_files': records},
-        'calibration': {'fitted': 'not yet (landing-zone calibrate)'},
-    }
+    }  # no 'calibration' record until landing-zone calibrate fits one
     save_model(out, ensemble, meta_out)
     return read_metadata(out)
