@@ -291,6 +291,11 @@ class Calibration(str, Enum):
     guarded = 'guarded'
 
 
+class LrSchedule(str, Enum):
+    constant = 'constant'
+    cosine = 'cosine'
+
+
 @app.command(help='Train the safety CNN on a dataset\'s train split (augmented on the fly), '
                   'calibrate it on held-out scenes and write it with its configuration.\n\n'
                   'Beside OUT: OUT.train.safetensors (state for --resume), OUT.log.csv.\n\n'
@@ -316,9 +321,9 @@ def train(
         show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
     lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
-    lr_schedule: Annotated[str, typer.Option(
-        help="'constant' (the paper's) or 'cosine' (the rate falls to 0 over the run).")
-    ] = 'constant',
+    lr_schedule: Annotated[LrSchedule, typer.Option(
+        help="constant (the paper's) or cosine (the rate falls to 0 over the run).")
+    ] = LrSchedule.constant,
     momentum: Annotated[float, typer.Option(help='SGD momentum.')] = 0.9,
     weight_decay: Annotated[float, typer.Option(help='L2 penalty.')] = 5e-4,
     batch_size: Annotated[int, typer.Option(help='Samples per minibatch.')] = 20,
@@ -370,7 +375,8 @@ def train(
 
     if arch is None:
         arch = read_metadata(init)['model']['spec'] if init is not None else DEFAULT_SPEC
-    cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, lr_schedule=lr_schedule, momentum=momentum,
+    cfg = TrainConfig(arch=arch, epochs=epochs, lr=lr, lr_schedule=lr_schedule.value,
+                      momentum=momentum,
                       weight_decay=weight_decay, batch_size=batch_size,
                       augment_copies=augment_copies, max_samples=max_samples,
                       max_scenes=max_scenes,

@@ -18,7 +18,7 @@
 # K - 1 of them) beside its leave-groups-out stand-ins: for group g, the fold model g and the
 # pair models without g, K members none of which saw g. The ensemble is calibrated on those
 # (`landing-zone calibrate`), which carry that calibration to be judged
-# (models/MODEL_CARD.md, "The shipped ensemble").
+# (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker

@@ -1,9 +1,10 @@
 """An ensemble of safety CNNs judged as one net: the mean of its members' logits.
 
-Members trained on different subsets of the families (the fold models of
-:func:`landing_zone.learn.lofo.family_folds`, beside the model trained on everything) disagree
-most where a tile looks like a family some of them never saw, and the mean logit is then less
-sure than the one model trained on everything (models/MODEL_CARD.md, "The shipped ensemble").
+The idea: members trained on different subsets of the families (the fold models of
+:func:`landing_zone.learn.lofo.family_folds`) disagree where a tile looks like a family some of
+them never saw, and their mean logit is then less sure there. Measured, it was not enough to
+ship one: members without a third of the families rank worse than one model trained on all of
+them (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").
 A :class:`SafetyEnsemble` offers what the rest of the code asks of a
 :class:`~landing_zone.judging.net.SafetyNet` (``embed``, ``head``, ``forward``, ``spec``,
 ``input_pool``, ``temperature`` and ``offset``), so the tiler, :class:`~landing_zone.judging.
