@@ -730,11 +730,17 @@ def simulate(
         help='Where the shards are simulated (same bytes either way). ' + _ENGINE_HELP)
     ] = Engine.local,
     address: Annotated[Optional[str], typer.Option(help=_ADDRESS_HELP)] = None,
+    families: Annotated[Optional[str], typer.Option(
+        help='synth3: draw obstacles from these families, comma separated (e.g. frame,mesh; '
+             'all, train, test) instead of the 17 synth3 was made with; such a dataset shares '
+             'no draw with the default one.')] = None,
 ) -> None:
     from landing_zone.engines import check_engine
     from landing_zone.errors import ConfigError
 
     check_engine(engine.value, address)
+    if families is not None and dataset is not DatasetName.synth3:
+        raise ConfigError('--families is a synth3 option')
 
     if dataset is DatasetName.hybrid:
         from landing_zone.sim.hybrid import simulate_hybrid
@@ -754,9 +760,12 @@ def simulate(
 
         if from_ or test_from or region is not None:
             raise ConfigError('--from, --test-from and --region are for --dataset hybrid')
+        from landing_zone.sim.families import parse_families
+
         s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
                              split=split, progress=not quiet, engine=engine.value,
-                             address=address)
+                             address=address,
+                             families=parse_families(families) if families else None)
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '

@@ -14,8 +14,9 @@ from landing_zone.learn.lofo import (family_figures, family_folds, family_report
                                      markdown_families, parse_hold_out, scene_families)
 from landing_zone.sim.dataset import simulate_dataset
 from landing_zone.sim.shards import SceneDataset
-from landing_zone.sim.families import FAMILIES, TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
-from landing_zone.sim.synth3 import SENSOR_FAMILIES, families_of, scene_plan, select_scenes
+from landing_zone.sim.families import TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
+from landing_zone.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of, scene_plan,
+                                     select_scenes, synth3_train_families)
 from landing_zone.sim.vegetation import VEGETATION_FAMILIES
 
 
@@ -45,8 +46,9 @@ def test_plan_pairs_and_splits():
     test = [p for p in plans if p['split'] == 'test']
     assert 0.2 < len(test) / len(plans) < 0.3
     # By family: test families only in the test split; by instance: disjoint index ranges.
-    assert {p['family'] for p in train} == set(TRAIN_FAMILIES)
-    assert {p['family'] for p in test} == set(FAMILIES)
+    assert {p['family'] for p in train} == set(synth3_train_families())
+    assert {p['family'] for p in test} == set(SYNTH3_FAMILIES)
+    assert set(synth3_train_families()) == set(TRAIN_FAMILIES) & set(SYNTH3_FAMILIES)
     assert max(p['instance'] for p in train) < TEST_BASE <= min(p['instance'] for p in test)
     assert {p['vegetation']['family'] for p in plans} == set(VEGETATION_FAMILIES)
     assert {p['sensor']['family'] for p in plans} == set(SENSOR_FAMILIES)
@@ -179,13 +181,13 @@ def test_train_without_a_family_and_evaluate_by_family(small, tmp_path):
 
 
 def test_family_folds_partition_the_train_families():
-    from landing_zone.sim.families import TRAIN_FAMILIES
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+    train = synth3_train_families()  # synth3's, fixed as families are added
     folds = family_folds(4, seed=0)
     flat = [spec for fold in folds for spec in fold]
-    assert sorted(flat) == sorted([f'obstacle:{f}' for f in TRAIN_FAMILIES]
+    assert sorted(flat) == sorted([f'obstacle:{f}' for f in train]
                                   + [f'vegetation:{f}' for f in VEGETATION_FAMILIES])
-    for axis, n in (('obstacle', len(TRAIN_FAMILIES)), ('vegetation', len(VEGETATION_FAMILIES))):
+    for axis, n in (('obstacle', len(train)), ('vegetation', len(VEGETATION_FAMILIES))):
         sizes = [sum(s.startswith(axis + ':') for s in fold) for fold in folds]
         assert max(sizes) - min(sizes) <= 1 and sum(sizes) == n and min(sizes) >= 1
     assert family_folds(4, seed=0) == folds and family_folds(4, seed=1) != folds
@@ -238,3 +240,33 @@ def test_train_on_an_even_subset_keeps_whole_pairs(small, tmp_path):
     meta = read_metadata(out)
     assert meta['n_train_scenes'] + meta['n_val_scenes'] == 6 and '6 scenes' in meta['source']
     assert meta['training']['max_scenes'] == 6
+
+
+def test_other_families_draw_only_those_and_share_no_draw(tmp_path):
+    """A synth3 dataset of other families: its train pairs draw the train families among them,
+    its test pairs every one of them; its meta names them, its seeds differ from the default
+    dataset's, and synth3's own plans are untouched (named in their order, they are the
+    default)."""
+    fams = ('frame', 'mesh', 'coil')
+    plans = [scene_plan(i, 0, fams) for i in range(600)]
+    assert {p['family'] for p in plans if p['split'] == 'train'} == {'frame', 'mesh'}
+    assert {p['family'] for p in plans if p['split'] == 'test'} == set(fams)
+    default = [scene_plan(i, 0) for i in range(40)]
+    assert [scene_plan(i, 0, SYNTH3_FAMILIES) for i in range(40)] == default
+    assert [p['vegetation'] for p in plans[:40]] != [p['vegetation'] for p in default]
+    root = tmp_path / 'thin'
+    simulate_dataset('synth3', root, scenes=4, workers=1, seed=2, shard_size=2,
+                     progress=False, families=('frame', 'mesh'))
+    ds = SceneDataset(root, 'all')
+    assert ds.meta['obstacle_families'] == ['frame', 'mesh']
+    assert ds.meta['obstacle_split']['train'] == ['frame', 'mesh']
+    assert set(scene_families(ds)['obstacle']) <= {'frame', 'mesh'}
+    # Resuming with other families is refused, not mixed into the directory.
+    with pytest.raises(DatasetError):
+        simulate_dataset('synth3', root, scenes=4, workers=1, seed=2, shard_size=2,
+                         progress=False, families=('frame',))
+    from landing_zone.errors import SimulationError
+    with pytest.raises(SimulationError, match='none is a train family'):
+        scene_plan(0, 0, ('coil',))
+    with pytest.raises(SimulationError, match='--families is a synth3 option'):
+        simulate_dataset('synth2', tmp_path / 's2', scenes=2, families=('frame',))

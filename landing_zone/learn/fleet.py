@@ -35,11 +35,11 @@ __all__ = ['lofo_families', 'fleet_jobs', 'train_fleet', 'markdown_fleet']
 
 def lofo_families() -> list[str]:
     """The hold-outs of the LOFO protocol: every train family of obstacles and every vegetation
-    family (synth3's test families are never trained on)."""
-    from landing_zone.sim.families import TRAIN_FAMILIES
+    family of synth3 (its test families are never trained on)."""
+    from landing_zone.sim.synth3 import synth3_train_families
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES
 
-    return ([f'obstacle:{f}' for f in TRAIN_FAMILIES]
+    return ([f'obstacle:{f}' for f in synth3_train_families()]
             + [f'vegetation:{f}' for f in VEGETATION_FAMILIES])
 
 

@@ -68,7 +68,9 @@ def parse_hold_out(specs: Sequence[str]) -> list[tuple[str, str]]:
 
 def family_folds(folds: int, seed: int = 0,
                  axes: Sequence[str] = ('obstacle', 'vegetation')) -> list[list[str]]:
-    """The train families of ``axes`` dealt into ``folds`` groups, as ``AXIS:FAMILY`` specs.
+    """The train families of ``axes`` dealt into ``folds`` groups, as ``AXIS:FAMILY`` specs
+    (obstacles: synth3's, :func:`~landing_zone.sim.synth3.synth3_train_families`, so that the
+    folds stay what they were as families are added).
 
     Leaving a group out instead of one family costs ``folds`` models instead of one per
     family (19 on synth3), and judges each family by a model that saw fewer families than a
@@ -79,9 +81,9 @@ def family_folds(folds: int, seed: int = 0,
     Raises:
         ConfigError: ``folds`` < 2 or more than an axis has families.
     """
-    from landing_zone.sim.families import TRAIN_FAMILIES
+    from landing_zone.sim.synth3 import synth3_train_families
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES
-    train = {'obstacle': tuple(TRAIN_FAMILIES), 'vegetation': tuple(VEGETATION_FAMILIES)}
+    train = {'obstacle': synth3_train_families(), 'vegetation': tuple(VEGETATION_FAMILIES)}
     out: list[list[str]] = [[] for _ in range(folds)]
     for k, axis in enumerate(axes):
         names = train.get(axis)

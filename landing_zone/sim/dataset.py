@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -36,11 +36,12 @@ from landing_zone.sim.sweeps import (TEST_FRACTION, generate_scene, get_sweep, s
 __all__ = ['simulate_dataset', 'progress_bar']
 
 
-def _make_shard(task: tuple[str, str, int, int, list[int]]) -> tuple[int, int, int, float]:
+def _make_shard(task: tuple[str, str, int, int, list[int], tuple[str, ...] | None]
+                ) -> tuple[int, int, int, float]:
     """Worker: simulate the scenes of one shard and write it. Returns (shard, scenes, rays, s)."""
-    out, dataset, seed, k, indices = task
+    out, dataset, seed, k, indices, families = task
     t0 = time.perf_counter()
-    records = [generate_scene(dataset, i, seed, threads=1) for i in indices]
+    records = [generate_scene(dataset, i, seed, threads=1, families=families) for i in indices]
     write_npz(Path(out) / shard_name(k), shard_arrays(records))
     return k, len(records), sum(r['rays'] for r in records), time.perf_counter() - t0
 
@@ -92,13 +93,15 @@ def _plan_meta(dataset: str, seed: int, split: str, scenes: int | None, shard_si
 def _plan_key(meta: dict[str, Any]) -> tuple:
     return (meta.get('format_version'), meta.get('dataset'), meta.get('seed'),
             meta.get('split'), meta.get('n_scenes'), meta.get('shard_size'),
-            tuple(s['first_index'] for s in meta.get('shards', [])))
+            tuple(s['first_index'] for s in meta.get('shards', [])),
+            tuple(meta.get('obstacle_families') or ()))
 
 
 def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = None,
                      workers: int | None = None, seed: int = 0, split: str = 'both',
                      shard_size: int = 32, progress: bool = True, engine: str = 'local',
-                     address: str | None = None) -> dict[str, Any]:
+                     address: str | None = None, families: Sequence[str] | None = None
+                     ) -> dict[str, Any]:
     """Generate (or finish generating) a dataset directory.
 
     Args:
@@ -117,6 +120,8 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         engine: ``local`` (processes here) or ``ray`` (one Ray task per shard; ``workers``
             CPUs of a local cluster unless ``address`` names one): the same files either way.
         address: the Ray cluster (:func:`landing_zone.engines.run_tasks`).
+        families: synth3 only: the obstacle families to draw from (None: synth3's own,
+            :data:`~landing_zone.sim.synth3.SYNTH3_FAMILIES`).
 
     Returns:
         Summary: scenes, shards written and skipped, seconds, scenes/s, rays, bytes on disk.
@@ -128,6 +133,9 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
     """
     if dataset != 'synth3':
         get_sweep(dataset)
+        if families is not None:
+            raise SimulationError(f'--families is a synth3 option; {dataset} draws from its '
+                                  'own obstacle library')
     check_engine(engine, address)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
@@ -137,8 +145,9 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
     if dataset == 'synth3':
         from landing_zone.sim import synth3
+        families = synth3.check_families(families)
         selected = synth3.select_scenes(scenes, split)
-        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected)
+        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families)
     else:
         selected = select_scenes(dataset, scenes, split)
         meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
@@ -152,7 +161,7 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         if shard_complete(out / shard['file'], indices):
             done += len(indices)
         else:
-            tasks.append((str(out.resolve()), dataset, int(seed), k, indices))
+            tasks.append((str(out.resolve()), dataset, int(seed), k, indices, families))
     workers = min(workers or os.cpu_count() or 1, max(len(tasks), 1))
     start_method = None
     if engine == 'local' and workers > 1:

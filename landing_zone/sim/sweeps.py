@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -158,9 +158,10 @@ def scene_rng(dataset: str, index: int, seed: int) -> np.random.Generator:
                                                          int(index)]))
 
 
-def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
-                   ) -> dict[str, Any]:
-    """Simulate scene ``index`` of a sweep.
+def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1,
+                   families: Sequence[str] | None = None) -> dict[str, Any]:
+    """Simulate scene ``index`` of a sweep (``families``: synth3's obstacle families, None its
+    own).
 
     Returns:
         A record: ``points_mm`` int16 (N, 3), ``hit_class`` uint8 (N,), ``origin_index`` uint16
@@ -169,7 +170,7 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1
     """
     if dataset == 'synth3':
         from landing_zone.sim.synth3 import generate_scene as generate_synth3
-        return generate_synth3(index, seed, threads)
+        return generate_synth3(index, seed, threads, families)
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig

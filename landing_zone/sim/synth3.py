@@ -17,10 +17,18 @@ obstacle tells them apart), and dropping a family drops whole pairs. In three of
 blades grow to 60-110 % of the obstacle's visible height (``hide``), in both scenes of the pair.
 
 **The split.** A hash of the pair puts a quarter of the pairs into the test split. Train pairs
-draw their obstacle from the train families (:data:`~landing_zone.sim.families.TRAIN_FAMILIES`)
-and from the train instances (index = pair number); test pairs from every family and from its
-test instances (index = ``TEST_BASE`` + pair number). So the test split holds families never
-trained on and, for the others, instances whose seed streams training never saw.
+draw their obstacle from the train families (:data:`~landing_zone.sim.families.TRAIN_FAMILIES`
+among the dataset's) and from the train instances (index = pair number); test pairs from every
+family and from its test instances (index = ``TEST_BASE`` + pair number). So the test split
+holds families never trained on and, for the others, instances whose seed streams training never
+saw.
+
+**Its obstacle families** are :data:`SYNTH3_FAMILIES`, the 17 families the dataset was made
+with, fixed so that its scenes stay what they were as families are added. ``families`` (``landing-
+zone simulate --dataset synth3 --families frame,mesh``) draws from other families instead, with
+the same split rule (train pairs from the train families among them); such a dataset records its
+families in ``meta.json`` and mixes their codes into every seed, so it shares no draw with the
+default one.
 
 **Leave one family out.** Every scene's ``params`` name its ``family`` (obstacle; the safe twin
 names its pair's), ``vegetation``, ``terrain`` and ``sensor``, and ``meta.json`` lists them per
@@ -30,20 +38,21 @@ reports each family of the test split.
 
 **Format, determinism, resuming**: as synth1/synth2 (:mod:`landing_zone.sim.dataset`); scene
 ``i`` draws its world from ``SeedSequence([seed, 3, i])``, its pair's plan from
-``SeedSequence([seed, 3, pair, PLAN])``.
+``SeedSequence([seed, 3, pair, PLAN])`` (with other ``families``, their codes appended to both).
 """
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import replace
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
 from landing_zone.errors import SimulationError
 
-__all__ = ['SYNTH3_CODE', 'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
+__all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_families',
+           'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
            'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta', 'generate_scene',
            'FAMILY_AXES']
 
@@ -57,6 +66,9 @@ TERRAIN_FAMILIES = {'flat': 0.4, 'sloped': 0.35, 'rough': 0.25}
 SENSOR_FAMILIES = {'nodding': 0.3, 'line': 0.2, 'spinning': 0.15, 'rosette': 0.15,
                    'elliptical': 0.2}
 FAMILY_AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')  # the hold-out axes
+# The obstacle families synth3 was made with (frozen: families added later draw no scene of it)
+SYNTH3_FAMILIES = ('rock', 'slab', 'rubble', 'log', 'stump', 'brush', 'box', 'crate', 'bucket',
+                   'pipe', 'tire', 'cinder_block', 'post', 'cone', 'coil', 'pallet', 'sack')
 _DENSITY = (1000.0, 5000.0)  # returns per m^2, log-uniform
 _FAR = 32.0  # [m] returns farther from the tile centre (on any axis) are not stored
 
@@ -153,16 +165,51 @@ def _check_index(index: int) -> int:
     return int(index)
 
 
-def scene_plan(index: int, seed: int = 0) -> dict[str, Any]:
-    """Everything scene ``index`` is before its world is drawn (JSON-ready)."""
-    from landing_zone.sim.families import FAMILIES, TEST_BASE, TRAIN_FAMILIES
+def synth3_train_families() -> tuple[str, ...]:
+    """The train families among :data:`SYNTH3_FAMILIES` (what its train split draws)."""
+    from landing_zone.sim.families import get_family
+    return tuple(n for n in SYNTH3_FAMILIES if get_family(n).split == 'train')
+
+
+def check_families(families: Sequence[str] | None) -> tuple[str, ...] | None:
+    """``families`` as the plan takes them: None for synth3's own (:data:`SYNTH3_FAMILIES`, also
+    when they are named in their order), else the names in the order given.
+
+    Raises:
+        SimulationError: an unknown or repeated family, or none of them a train family.
+    """
+    from landing_zone.sim.families import get_family
+    if families is None:
+        return None
+    names = tuple(str(f) for f in families)
+    if not names or len(set(names)) != len(names):
+        raise SimulationError(f'synth3 families must be distinct names, got {list(names)}')
+    if not any(get_family(n).split == 'train' for n in names):
+        raise SimulationError(f'synth3 families {", ".join(names)}: none is a train family, '
+                              'so no train pair could draw one')
+    return None if names == SYNTH3_FAMILIES else names
+
+
+def _family_key(families: tuple[str, ...] | None) -> list[int]:
+    from landing_zone.sim.families import get_family
+    return [] if families is None else [get_family(n).code for n in families]
+
+
+def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None
+               ) -> dict[str, Any]:
+    """Everything scene ``index`` is before its world is drawn (JSON-ready); ``families``:
+    the obstacle families to draw from (None: :data:`SYNTH3_FAMILIES`)."""
+    from landing_zone.sim.families import TEST_BASE, get_family
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES, draw_vegetation
     index = _check_index(index)
+    fams = check_families(families)
     pair = index // 2
     split = _pair_split(pair)
     unsafe = (index % 2) == _pair_unsafe_member(pair)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]))
-    pool = TRAIN_FAMILIES if split == 'train' else tuple(FAMILIES)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]
+                                                       + _family_key(fams)))
+    every = SYNTH3_FAMILIES if fams is None else fams
+    pool = tuple(f for f in every if get_family(f).split == 'train') if split == 'train' else every
     family = pool[int(rng.integers(len(pool)))]
     veg = VEGETATION_FAMILIES[int(rng.integers(len(VEGETATION_FAMILIES)))]
     return {'dataset': 'synth3', 'index': index, 'pair': pair, 'split': split,
@@ -200,13 +247,16 @@ def select_scenes(scenes: int | None = None, split: str = 'both') -> np.ndarray:
 
 
 def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
-              selected: np.ndarray) -> dict[str, Any]:
-    """meta.json of a synth3 directory (the synth2 layout, plus the families of every scene)."""
+              selected: np.ndarray, families: Sequence[str] | None = None) -> dict[str, Any]:
+    """meta.json of a synth3 directory (the synth2 layout, plus the families of every scene;
+    with other ``families``, their names under ``obstacle_families``)."""
     from landing_zone.sim.shards import FORMAT_VERSION, shard_name as _shard_name
-    from landing_zone.sim.families import FAMILIES, TEST_FAMILIES, TRAIN_FAMILIES
+    from landing_zone.sim.families import get_family
     from landing_zone.sim.scene import PatchConfig
     from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, VEGETATION_FAMILIES
-    plans = [scene_plan(int(i), seed) for i in selected]
+    chosen = check_families(families)
+    every = SYNTH3_FAMILIES if chosen is None else chosen
+    plans = [scene_plan(int(i), seed, chosen) for i in selected]
     counts = {s: {'safe': 0, 'unsafe': 0} for s in ('train', 'test')}
     for p in plans:
         counts[p['split']]['safe' if p['label'] == 1 else 'unsafe'] += 1
@@ -225,9 +275,11 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
         'dataset': 'synth3', 'seed': int(seed), 'split': split, 'scenes_requested': scenes,
         'n_scenes': len(plans), 'shard_size': shard_size, 'test_fraction': TEST_FRACTION,
         'counts': counts,
-        'obstacle_split': {'train': list(TRAIN_FAMILIES), 'test': list(TEST_FAMILIES),
+        **({'obstacle_families': list(chosen)} if chosen is not None else {}),
+        'obstacle_split': {'train': [n for n in every if get_family(n).split == 'train'],
+                           'test': [n for n in every if get_family(n).split == 'test'],
                            'instances': 'train: index < TEST_BASE, test: TEST_BASE + pair'},
-        'families': {'obstacle': {n: f.to_json() for n, f in FAMILIES.items()},
+        'families': {'obstacle': {n: get_family(n).to_json() for n in every},
                      'vegetation': list(VEGETATION_FAMILIES),
                      'terrain': TERRAIN_FAMILIES, 'sensor': SENSOR_FAMILIES,
                      'safe_shrub_height': SAFE_SHRUB_HEIGHT, 'hide_share': HIDE_SHARE,
@@ -281,10 +333,12 @@ def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: 
                        grade=grade)
 
 
-def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any]:
-    """Simulate scene ``index`` of synth3: the record :func:`landing_zone.sim.dataset.
-    generate_scene` returns (``points_mm``, ``hit_class``, ``origin_index``, ``origins``,
-    ``origin_times``, ``label``, ``split``, ``params``, ``rays``, ``timings``)."""
+def generate_scene(index: int, seed: int = 0, threads: int = 1,
+                   families: Sequence[str] | None = None) -> dict[str, Any]:
+    """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own): the
+    record :func:`landing_zone.sim.dataset.generate_scene` returns (``points_mm``,
+    ``hit_class``, ``origin_index``, ``origins``, ``origin_times``, ``label``, ``split``,
+    ``params``, ``rays``, ``timings``)."""
     from landing_zone.sim.families import instance, keep_visible
     from landing_zone.sim.flyover import flyover_scan
     from landing_zone.sim.mesh import Mesh
@@ -296,8 +350,10 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1) -> dict[str, Any
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    plan = scene_plan(index, seed)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, int(index)]))
+    fams = check_families(families)
+    plan = scene_plan(index, seed, fams)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, int(index)]
+                                                       + _family_key(fams)))
     patch = PatchConfig()
     aoi, box = patch.aoi, patch.column
     inst = instance(plan['family'], plan['instance'])
