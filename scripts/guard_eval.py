@@ -26,7 +26,8 @@ over the judged tiles, the shares of obstacle tiles at P(safe) >= 0.5 and >= 0.9
 (share of safe tiles at P(safe) < 0.5), unknown tiles; and for the guard itself, the tiles it
 capped and how many of them were safe::
 
-    python scripts/guard_eval.py runs/guard_eval --seeds 3 --json runs/guard_eval.json
+    python scripts/guard_eval.py runs/guard_eval --seeds 3 --json runs/guard_eval.json \
+        [--model M.safetensors]
 
 Flights, inserted bags and per-flight results are kept in WORKDIR: a rerun (or a run cut
 short) picks up where it stopped. Seeds start at ``--first-seed`` (100: the guard's
@@ -185,10 +186,11 @@ def place_shapes(points: np.ndarray, count: int, taken: list[np.ndarray],
 
 # --- one flight --------------------------------------------------------------------------------
 
-def run_flight(work: Path, name: str, seed: int, keep_map: bool = False) -> dict[str, Any]:
-    """Simulate, insert, replay one flight of a condition (cached in ``work``); with
-    ``keep_map`` the final density map goes to ``NAME_SEED.npz`` beside its labels (for
-    ``scripts/ood_eval.py``)."""
+def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
+               model: Path | None = None) -> dict[str, Any]:
+    """Simulate, insert, replay one flight of a condition (cached in ``work``) with ``model``
+    (None: the shipped one, and its OOD reference beside it); with ``keep_map`` the final
+    density map goes to ``NAME_SEED.npz`` beside its labels (for ``scripts/ood_eval.py``)."""
     from landing_zone.sim.insert import insert_obstacles
     from landing_zone.sim.recorded import read_flight
     from landing_zone.frontends.replay import replay
@@ -219,7 +221,7 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False) -> dict
         bag, labels = inserted, inserted.with_suffix('.labels.json')
     from landing_zone.config import GuardConfig
 
-    res = replay(bag, center=(0.0, 0.0), progress=False)
+    res = replay(bag, center=(0.0, 0.0), progress=False, model=model)
     a = res.assessment
     cap = GuardConfig().max_p_safe
     ood = a.ood if a.ood is not None else np.full(len(a), np.nan)
@@ -402,6 +404,10 @@ def main() -> int:
     ap.add_argument('--conditions', default=','.join(CONDITIONS),
                     help='comma separated, from: ' + ', '.join(CONDITIONS))
     ap.add_argument('--json', type=Path, default=None, help='write the figures here')
+    ap.add_argument('--model', type=Path, default=None,
+                    help='model file (default: the shipped one); its NAME.ood.safetensors '
+                         'beside it is its OOD reference. Use a WORKDIR per model: results '
+                         'there are reused')
     ap.add_argument('--keep-maps', action='store_true',
                     help='also keep each flight\'s final density map (NAME_SEED.npz)')
     args = ap.parse_args()
@@ -415,7 +421,7 @@ def main() -> int:
     for name in names:
         docs = []
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            docs.append(run_flight(args.workdir, name, seed, args.keep_maps))
+            docs.append(run_flight(args.workdir, name, seed, args.keep_maps, args.model))
             print(f'{name} seed {seed}: {docs[-1]["seconds"]:.0f} s', file=sys.stderr)
         summary[name] = summarise(docs)
     obstacle = [n for n in names if CONDITIONS[n][3] or CONDITIONS[n][2]]
