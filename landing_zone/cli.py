@@ -739,8 +739,6 @@ def simulate(
     from landing_zone.errors import ConfigError
 
     check_engine(engine.value, address)
-    if families is not None and dataset is not DatasetName.synth3:
-        raise ConfigError('--families is a synth3 option')
 
     if dataset is DatasetName.hybrid:
         from landing_zone.sim.hybrid import simulate_hybrid
@@ -752,6 +750,9 @@ def simulate(
         if scenes is not None or split != 'both':
             raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
                               'flight: not --scenes or --split')
+        if families is not None:  # (synth1/synth2: simulate_dataset refuses it)
+            raise ConfigError('--families is a synth3 option; hybrid inserts the library\'s '
+                              'obstacles')
         s = simulate_hybrid(from_ or [], out, test_flights=test_from or [], patches=patches,
                             seed=seed, region=region, points_topic=points_topic,
                             pose_topic=pose_topic, progress=not quiet)
@@ -765,7 +766,7 @@ def simulate(
         s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
                              split=split, progress=not quiet, engine=engine.value,
                              address=address,
-                             families=parse_families(families) if families else None)
+                             families=None if families is None else parse_families(families))
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '

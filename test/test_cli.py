@@ -25,11 +25,15 @@ def test_unknown_benchmark_is_one_clear_line():
 
 def test_simulate_families_are_checked_in_one_line(tmp_path):
     """--families names obstacle families of synth3 only; a wrong one is one line, no file."""
-    for args, words in ((('--dataset', 'synth2', '--families', 'frame'), 'synth3 option'),
-                        (('--dataset', 'synth3', '--families', 'spaceship'),
+    two = ('--scenes', '2')
+    for args, words in ((('--dataset', 'synth2', '--families', 'frame', *two), 'synth3 option'),
+                        (('--dataset', 'hybrid', '--from', str(tmp_path / 'f.mcap'),
+                          '--families', 'frame'), 'synth3 option'),
+                        (('--dataset', 'synth3', '--families', 'spaceship', *two),
                          'unknown obstacle family'),
-                        (('--dataset', 'synth3', '--families', 'coil'), 'none is a train family')):
-        out = run_cli('simulate', '--out', str(tmp_path / 'd'), '--scenes', '2', *args)
+                        (('--dataset', 'synth3', '--families', 'coil', *two),
+                         'none is a train family')):
+        out = run_cli('simulate', '--out', str(tmp_path / 'd'), *args)
         assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
         assert len(out.stderr.strip().splitlines()) == 1 and words in out.stderr, out.stderr
     assert not (tmp_path / 'd').exists()

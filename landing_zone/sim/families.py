@@ -605,8 +605,7 @@ def _frame(rng: np.random.Generator) -> Shape:
         top_w = 0.5 * width if kind == 'four_legs' else rng.uniform(0.02, 0.06)
         hx, hy = 0.5 * length, 0.5 * width
         feet = [(sx * hx, sy * hy, r) for sx in (-1, 1) for sy in (-1, 1)]
-        tops = [(sx * (hx - splay), sy * (top_w - (splay if kind == 'four_legs' else 0.0)), h)
-                for sx in (-1, 1) for sy in (-1, 1)]
+        tops = [(sx * (hx - splay), sy * (top_w - splay), h) for sx in (-1, 1) for sy in (-1, 1)]
         for f, t in zip(feet, tops):
             bodies.append(sh.rod(f, t, r, 8))
         # the top rails (a sawhorse's beam is the long pair), and stretchers on some
@@ -627,7 +626,7 @@ def _frame(rng: np.random.Generator) -> Shape:
     v, f = sh.join(bodies)
     pose = _pick(rng, {'upright': 0.5, 'lying': 0.3, 'leaning': 0.2})
     if pose == 'lying':  # knocked over onto its side
-        v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
+        v = _lying(v)
     elif pose == 'leaning':  # propped up on two legs
         v = sh.tilt(v, math.radians(rng.uniform(10, 30)), rng.uniform(0, 2 * math.pi))
     return Shape(sh.settle(v), f, pose, 'single', True, {'kind': kind, 'rod': r})
@@ -672,8 +671,7 @@ def _mesh(rng: np.random.Generator) -> Shape:
             x, y = float(top[:, 0].mean()), float(top[:, 1].mean())
             v, f = sh.join([(v, f), sh.rod((x, y, 0.0), (x, y, float(v[:, 2].max())), 0.01, 8)])
         return Shape(sh.settle(v), f, pose, 'single', True, {'form': 'panel', 'wire': wire})
-    size = (rng.uniform(0.25, 0.6), rng.uniform(0.25, 0.6), rng.uniform(0.2, 0.45))
-    lx, ly, lz = size
+    lx, ly, lz = rng.uniform(0.25, 0.6), rng.uniform(0.25, 0.6), rng.uniform(0.2, 0.45)
     bodies = []
     for y in (-0.5 * ly, 0.5 * ly):  # four walls and a bottom; the top is open on most
         bodies += [(bv + np.array([0.0, y, 0.0]), bf) for bv, bf in _grid(lx, lz, pu, pv, wire)]

@@ -165,10 +165,15 @@ def _check_index(index: int) -> int:
     return int(index)
 
 
+def _train_among(names: Sequence[str]) -> tuple[str, ...]:
+    """The train families among ``names``, in their order (what a train pair draws from)."""
+    from landing_zone.sim.families import get_family
+    return tuple(n for n in names if get_family(n).split == 'train')
+
+
 def synth3_train_families() -> tuple[str, ...]:
     """The train families among :data:`SYNTH3_FAMILIES` (what its train split draws)."""
-    from landing_zone.sim.families import get_family
-    return tuple(n for n in SYNTH3_FAMILIES if get_family(n).split == 'train')
+    return _train_among(SYNTH3_FAMILIES)
 
 
 def check_families(families: Sequence[str] | None) -> tuple[str, ...] | None:
@@ -178,13 +183,12 @@ def check_families(families: Sequence[str] | None) -> tuple[str, ...] | None:
     Raises:
         SimulationError: an unknown or repeated family, or none of them a train family.
     """
-    from landing_zone.sim.families import get_family
     if families is None:
         return None
     names = tuple(str(f) for f in families)
     if not names or len(set(names)) != len(names):
         raise SimulationError(f'synth3 families must be distinct names, got {list(names)}')
-    if not any(get_family(n).split == 'train' for n in names):
+    if not _train_among(names):  # (an unknown name is refused here, by name)
         raise SimulationError(f'synth3 families {", ".join(names)}: none is a train family, '
                               'so no train pair could draw one')
     return None if names == SYNTH3_FAMILIES else names
@@ -199,7 +203,7 @@ def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None
                ) -> dict[str, Any]:
     """Everything scene ``index`` is before its world is drawn (JSON-ready); ``families``:
     the obstacle families to draw from (None: :data:`SYNTH3_FAMILIES`)."""
-    from landing_zone.sim.families import TEST_BASE, get_family
+    from landing_zone.sim.families import TEST_BASE
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES, draw_vegetation
     index = _check_index(index)
     fams = check_families(families)
@@ -209,7 +213,7 @@ def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]
                                                        + _family_key(fams)))
     every = SYNTH3_FAMILIES if fams is None else fams
-    pool = tuple(f for f in every if get_family(f).split == 'train') if split == 'train' else every
+    pool = _train_among(every) if split == 'train' else every
     family = pool[int(rng.integers(len(pool)))]
     veg = VEGETATION_FAMILIES[int(rng.integers(len(VEGETATION_FAMILIES)))]
     return {'dataset': 'synth3', 'index': index, 'pair': pair, 'split': split,
@@ -256,6 +260,7 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
     from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, VEGETATION_FAMILIES
     chosen = check_families(families)
     every = SYNTH3_FAMILIES if chosen is None else chosen
+    train = _train_among(every)
     plans = [scene_plan(int(i), seed, chosen) for i in selected]
     counts = {s: {'safe': 0, 'unsafe': 0} for s in ('train', 'test')}
     for p in plans:
@@ -276,8 +281,8 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
         'n_scenes': len(plans), 'shard_size': shard_size, 'test_fraction': TEST_FRACTION,
         'counts': counts,
         **({'obstacle_families': list(chosen)} if chosen is not None else {}),
-        'obstacle_split': {'train': [n for n in every if get_family(n).split == 'train'],
-                           'test': [n for n in every if get_family(n).split == 'test'],
+        'obstacle_split': {'train': list(train),
+                           'test': [n for n in every if n not in train],
                            'instances': 'train: index < TEST_BASE, test: TEST_BASE + pair'},
         'families': {'obstacle': {n: get_family(n).to_json() for n in every},
                      'vegetation': list(VEGETATION_FAMILIES),
