@@ -307,7 +307,7 @@ class LrSchedule(str, Enum):
                   '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
                   '--data synth3_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
                   'adaptation; never more lenient on obstacles than the --init model: see '
-                  '--leniency-penalty, --calibration)\n\n'
+                  '--leniency-penalty, --calibration, --guard-data)\n\n'
                   '  landing-zone train --data data/synth3 --hold-out obstacle:log --out '
                   'lofo_log.safetensors  (leave one family out)')
 def train(
@@ -368,6 +368,10 @@ def train(
     hold_out: Annotated[Optional[list[str]], typer.Option(
         help='Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
              'terrain:sloped, sensor:rosette; synth3 data); repeat for more.')] = None,
+    guard_data: Annotated[Optional[list[Path]], typer.Option(
+        help='With the guarded calibration: a dataset never trained on (e.g. synth3 of '
+             '--families frame,mesh) whose obstacle scenes the guard also holds on, as a '
+             'group of its own; repeat for more.')] = None,
 ) -> None:
     from landing_zone.judging.checkpoint import read_metadata
     from landing_zone.judging.net import DEFAULT_SPEC
@@ -385,7 +389,7 @@ def train(
                       edge_drop=edge_drop, checkpoint_minutes=checkpoint_minutes,
                       precision=precision, hold_out=list(hold_out or []),
                       leniency_penalty=leniency_penalty, calibration=calibration.value)
-    s = run_train(data, out, cfg, resume=resume, init=init)
+    s = run_train(data, out, cfg, resume=resume, init=init, guard_data=guard_data or None)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
           f'at temperature {s["temperature"]:.3f}, offset {s["offset"]:+.3f} '

@@ -63,6 +63,10 @@ def test_the_guard_holds_in_every_group():
         > report['groups'][1]['passed']['0.5']['initial']
     # pooled, the group the new net judges as before would have hidden it
     assert guarded_offset(new, z, y, T, B)[0] >= b
+    # each group's own limit: group 0 asks for nothing, group 1 set the offset
+    assert report['groups'][0]['offset_limit'] == B
+    assert report['groups'][1]['offset_limit'] == b
+    assert guarded_offset(new[g == 1], z[g == 1], y[g == 1], T, B)[0] == b
 
 
 def test_bad_input_is_refused():

@@ -218,6 +218,38 @@ def test_fine_tuning_keeps_the_initial_calibration_guarded(tmp_path):
     assert 'calibration' not in read_metadata(tmp_path / 'r.safetensors')
 
 
+def test_the_guard_also_holds_on_guard_sets_never_trained_on(tmp_path):
+    scenes = toy_scenes(12, seed=10)
+    start = calibrated_start(tmp_path, scenes)
+    out = tmp_path / 'site.safetensors'
+    guard_scenes = toy_scenes(10, seed=21)
+    train(scenes, out, quick_config(lr=0.001), init=start, progress=False,
+          guard_data=[guard_scenes])
+    net, meta = load_model(out)
+    cal = meta['calibration']
+    assert 'guard set' in cal['fitted_on']
+    groups = {e['source']: e for e in cal['groups']}
+    assert set(groups) == {'list'}  # a scene sequence is named by its type
+    held = [e for e in cal['groups'] if e['group'] == 1]
+    assert len(held) == 1 and held[0]['obstacles'] == sum(s.label == 0 for s in guard_scenes)
+    for e in cal['groups']:
+        assert net.offset <= e['offset_limit']
+        for t in ('0.5', '0.9'):
+            assert e['passed'][t]['guarded'] <= e['passed'][t]['initial']
+    assert net.offset == min([-0.5] + [e['offset_limit'] for e in cal['groups']])
+
+
+def test_guard_data_must_be_held_out_and_need_the_guarded_calibration(tmp_path):
+    scenes = toy_scenes(8, seed=10)
+    with pytest.raises(ConfigError, match='guarded calibration'):
+        train(scenes, tmp_path / 'm.safetensors', quick_config(), progress=False,
+              guard_data=[toy_scenes(4, seed=3)])
+    d = tmp_path / 'synth3_some'
+    with pytest.raises(ConfigError, match='both training data and guard data'):
+        train([d, tmp_path / 'hybrid'], tmp_path / 'm.safetensors', quick_config(),
+              init=tmp_path / 'start.safetensors', guard_data=[d], progress=False)
+
+
 def test_an_ensemble_is_fine_tuned_as_one_net_and_stays_an_ensemble(tmp_path):
     from landing_zone.judging.ensemble import SafetyEnsemble
     from landing_zone.learn.ensembles import assemble

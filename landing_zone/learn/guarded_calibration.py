@@ -50,8 +50,10 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
         thresholds: P(safe) levels, each in (0, 1).
 
     Returns:
-        ``(b', report)``: the report gives, per group and threshold, the obstacle tiles passed
-        by the initial model and by the fine-tuned one before and after the guard.
+        ``(b', report)``: the report gives, per group, the largest offset that group alone
+        allows (``offset_limit``: the group with the lowest one set ``b'``) and, per threshold,
+        the obstacle tiles passed by the initial model and by the fine-tuned one before and
+        after the guard.
 
     Raises:
         ConfigError: mismatched lengths, non-finite logits, a bad temperature or threshold.
@@ -76,6 +78,7 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
     for group in np.unique(g[y == 0]):
         sel = (y == 0) & (g == group)
         s_new = np.sort(zn[sel] / temperature)[::-1]  # most lenient first
+        limit = float(offset)  # the largest offset this group alone allows
         for t in thresholds:
             allowed = passes(zi[sel], temperature, offset, t)
             if allowed < s_new.size:
@@ -83,8 +86,10 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
                 cut = float(np.nextafter(_logit(t) - s_new[allowed], -np.inf))
                 while passes(zn[sel], temperature, cut, t) > allowed:  # rounding
                     cut = float(np.nextafter(cut, -np.inf))
-                b = min(b, cut)
-        report['groups'].append({'group': int(group), 'obstacles': int(sel.sum())})
+                limit = min(limit, cut)
+        b = min(b, limit)
+        report['groups'].append({'group': int(group), 'obstacles': int(sel.sum()),
+                                 'offset_limit': limit})
     for entry in report['groups']:
         sel = (y == 0) & (g == entry['group'])
         entry['passed'] = {str(t): {'initial': passes(zi[sel], temperature, offset, t),
