@@ -4,6 +4,8 @@
 # user's recordings) -> a hybrid set (obstacles inserted by ray alteration) -> fine-tuning with
 # some synth3 rehearsed (every train family of obstacles, vegetation, terrain and sensor; by
 # default under the leniency penalty and with the initial model's calibration kept, guarded)
+# and its offset also guarded on obstacle families that no training, rehearsal or test set
+# holds: frames and wire mesh, WORKDIR/guard_thin)
 # -> the initial and the adapted model compared on:
 #   - the held-out vegetation: false alarms (safe tiles given P(safe) < 0.5) on the hybrid test
 #     split (flight 12) and on a further flight with obstacles neither saw (flight 13);
@@ -14,7 +16,9 @@
 #   usage: scripts/site_adaptation.sh [WORKDIR] [VEGETATION]   (defaults: runs/site, mixed)
 # Environment: MODEL (default the shipped one), TEST_DATA (default data/synth3_test), NAME (of
 # the adapted model, default site), TRAIN_ARGS (more options for train, e.g.
-# "--leniency-penalty 0 --calibration refit" for plain fine-tuning). Flights and data sets
+# "--leniency-penalty 0 --calibration refit" for plain fine-tuning, with GUARD_ARGS=),
+# GUARD_ARGS (default --guard-data WORKDIR/guard_thin; empty: the guard holds on the training
+# sources' validation obstacles only). Flights and data sets
 # already in WORKDIR are reused; an adapted model already there is kept.
 set -euo pipefail
 work=${1:-runs/site}; veg=${2:-mixed}
@@ -35,11 +39,16 @@ done
 [ -f "$work/synth3_some/meta.json" ] || \
 "$lz" simulate --dataset synth3 --split train --scenes 1200 --out "$work/synth3_some" \
     --seed 0 --quiet
-# shellcheck disable=SC2086  # TRAIN_ARGS is a list of options
+# the guard set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
+[ -f "$work/guard_thin/meta.json" ] || \
+"$lz" simulate --dataset synth3 --families frame,mesh --split train --scenes 600 \
+    --out "$work/guard_thin" --seed 0 --quiet
+guard_args=${GUARD_ARGS---guard-data $work/guard_thin}
+# shellcheck disable=SC2086  # TRAIN_ARGS and guard_args are lists of options
 [ -f "$adapted" ] || \
 "$lz" train --init "$shipped" --data "$work/hybrid" --data "$work/synth3_some" \
     --out "$adapted" --lr 0.001 --epochs 4 --augment-copies 6 --cache-voxels 3 --workers 2 \
-    ${TRAIN_ARGS:-} 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|train:)'
+    $guard_args ${TRAIN_ARGS:-} 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|train:)'
 "$lz" evaluate --data "$work/hybrid" --model "$shipped" --model "$adapted" \
     --json "$work/hybrid_$name.json"
 if [ -d "$test_data" ]; then
