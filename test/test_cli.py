@@ -37,3 +37,15 @@ def test_simulate_families_are_checked_in_one_line(tmp_path):
         assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
         assert len(out.stderr.strip().splitlines()) == 1 and words in out.stderr, out.stderr
     assert not (tmp_path / 'd').exists()
+
+
+def test_train_guard_data_is_checked_in_one_line(tmp_path):
+    """A guard set must be held out of the fine-tuning and needs the guarded calibration."""
+    data, out = tmp_path / 'some', tmp_path / 'm.safetensors'
+    for args, words in ((('--init', 'models/landing_zone.safetensors', '--guard-data', str(data)),
+                         'both training data and guard data'),
+                        (('--guard-data', str(tmp_path / 'thin')), 'guarded calibration')):
+        res = run_cli('train', '--data', str(data), '--out', str(out), *args)
+        assert res.returncode == 2 and 'Traceback' not in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1 and words in res.stderr, res.stderr
+    assert not out.exists()
