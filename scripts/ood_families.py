@@ -1,5 +1,5 @@
-"""What the OOD signal (and the guard) do per family: synth3's test split judged as the
-assessor judges it.
+"""What the OOD signal (and the guard) do per family: synth3's test split (or, with
+``--split train``, a set of families no model trained on) judged as the assessor judges it.
 
 For every test scene: the model's P(safe) and penultimate features from one pass, the k-NN
 distance of the features to the model's reference (``NAME.ood.safetensors``), and the rule of
@@ -17,7 +17,7 @@ OOD signal, each with the shares above; the JSON gains ``guard`` and ``guard_ood
 of safe and obstacle scenes the guard fired on (``fired_safe``, ``fired_unsafe``).
 
     python scripts/ood_families.py MODEL DATA_DIR [--reference REF] [--guard [--scores S]] \\
-        [--json OUT] [--workers 2]
+        [--json OUT] [--workers 2] [--split test|train]
 """
 from __future__ import annotations
 
@@ -60,6 +60,8 @@ def main() -> None:
     ap.add_argument('--reference', type=Path, default=None)
     ap.add_argument('--json', type=Path, default=None)
     ap.add_argument('--workers', type=int, default=2)
+    ap.add_argument('--split', choices=('test', 'train'), default='test',
+                    help='the split judged (train: e.g. a set of families no model trained on)')
     ap.add_argument('--guard', action='store_true',
                     help='also the guard, before the OOD signal as in the assessor')
     ap.add_argument('--scores', type=Path, default=None,
@@ -68,7 +70,7 @@ def main() -> None:
     args = ap.parse_args()
     net, meta = load_model(args.model)
     ref = load_reference(args.reference or reference_path_for(args.model), meta['weights_sha256'])
-    ds = SceneDataset(args.data, 'test')
+    ds = SceneDataset(args.data, args.split)
     fams = scene_families(ds)
     pack = ScenePack.from_scenes(ds)
     mcfg, tcfg = input_configs(meta)
@@ -98,7 +100,8 @@ def main() -> None:
             from landing_zone.learn.evaluate import scores_json
             rows = [SimpleNamespace(name='net', scores=p),
                     SimpleNamespace(name='net + guard', scores=pg)]
-            doc = scores_json(rows, pack.scene_ids.numpy(), y, str(ds.meta.get('dataset')), 'test')
+            doc = scores_json(rows, pack.scene_ids.numpy(), y, str(ds.meta.get('dataset')),
+                              args.split)
             args.scores.write_text(json.dumps(doc) + '\n', encoding='utf-8')
 
     def figures(sel: np.ndarray) -> dict:
