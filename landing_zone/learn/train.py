@@ -54,6 +54,8 @@ from landing_zone.judging.inference import bf16_supported, predict
 from landing_zone.judging.ensemble import AnyNet, SafetyEnsemble
 from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import tile_voxels
+from landing_zone.learn.guard_sets import (check_held_out, guard_offset, load_guard_sets,
+                                           source_names)
 from landing_zone.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
                                         voxelize)
 from landing_zone.learn.scenes import ScenePack, labels_of, open_source, part_of, split_scenes
@@ -236,7 +238,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     if guard_data is not None and calibration != 'guarded':
         raise ConfigError('guard data serve the guarded calibration only: fine-tune with '
                           '--init and the guarded calibration')
-    _check_held_out(guard_data, data)
+    check_held_out(guard_data, data)
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     mcfg.validate()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
@@ -282,7 +284,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         d.val.share_memory()
     d.val_inputs, d.val_labels = voxelize(d.val, mcfg, tcfg, cfg.workers, progress,
                                           'voxelizing val')
-    guard = _guard_set(guard_data, mcfg, tcfg, cfg.workers, progress) \
+    guard = load_guard_sets(guard_data, mcfg, tcfg, cfg.workers, progress) \
         if guard_data is not None else None
     load_seconds = time.perf_counter() - t_load
 
@@ -436,33 +438,21 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     y_val = d.val_labels.numpy()
     calibration_meta: dict[str, Any] = {}
     if calibration == 'guarded':
-        from landing_zone.learn.guarded_calibration import guarded_offset
         assert src is not None
-        init_logits, _, _ = _evaluate(src.to(device), d.val_inputs, d.val_labels,
-                                      eval_precision)
-        ref_new, ref_init, ref_y, ref_groups = logits, init_logits, y_val, d.val_groups
-        names = _source_names(data, source_name)
-        fitted_on = 'validation scenes with an obstacle, per training source'
-        if guard is not None:
-            # the guard sets: groups after the training sources', the same two nets
-            g_new, _, _ = _evaluate(model, guard.inputs, guard.labels, eval_precision)
-            g_init, _, _ = _evaluate(src.to(device), guard.inputs, guard.labels, eval_precision)
-            ref_new = np.concatenate([logits, g_new])
-            ref_init = np.concatenate([init_logits, g_init])
-            ref_y = np.concatenate([y_val, guard.labels.numpy()])
-            ref_groups = np.concatenate([d.val_groups, len(names) + guard.groups])
-            names = names + guard.names
-            fitted_on += ', and every obstacle scene of each guard set (never trained on)'
+        init_net = src.to(device)
+        init_logits, _, _ = _evaluate(init_net, d.val_inputs, d.val_labels, eval_precision)
+        set_logits = None
+        if guard is not None:  # the same two nets on the guard sets
+            set_logits = (_evaluate(model, guard.inputs, guard.labels, eval_precision)[0],
+                          _evaluate(init_net, guard.inputs, guard.labels, eval_precision)[0])
         temperature = float(src.temperature)
-        offset, report = guarded_offset(ref_new, ref_init, ref_y, temperature,
-                                        float(src.offset), groups=ref_groups)
-        for entry in report['groups']:
-            entry['source'] = names[entry['group']] if entry['group'] < len(names) else ''
-        calibration_meta = {'calibration': {
-            'method': 'guarded', 'initial_model': str(init), 'fitted_on': fitted_on,
-            **report}}
+        offset, record = guard_offset(logits, init_logits, y_val, d.val_groups,
+                                      source_names(data, source_name), temperature,
+                                      float(src.offset), guard, set_logits)
+        calibration_meta = {'calibration': {'method': 'guarded', 'initial_model': str(init),
+                                            **record}}
         if progress:
-            lowest = min(report['groups'], key=lambda e: e['offset_limit'], default=None)
+            lowest = min(record['groups'], key=lambda e: e['offset_limit'], default=None)
             by = f' (set by {lowest["source"]})' if lowest is not None and offset < src.offset \
                 else ''
             print(f'train: calibration of {init} kept (T {temperature:.3f}), offset '
@@ -489,66 +479,6 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     save_model(out, model_cpu, {**meta_common, 'metrics': metrics, **calibration_meta})
     return {'out': str(out), 'state': str(spath), 'log': str(lpath), 'spec': model_cpu.spec,
             'temperature': temperature, 'offset': offset, 'calibration': calibration, **metrics}
-
-
-@dataclass
-class _GuardSet:
-    inputs: torch.Tensor
-    labels: torch.Tensor
-    groups: np.ndarray  # 0.. per guard set
-    names: list[str]
-
-
-def _paths(data: Any) -> list[Path]:
-    if isinstance(data, (str, os.PathLike)):
-        return [Path(data).resolve()]
-    if isinstance(data, (list, tuple)) and all(isinstance(d, (str, os.PathLike)) for d in data):
-        return [Path(d).resolve() for d in data]
-    return []
-
-
-def _source_names(data: Any, fallback: str) -> list[str]:
-    paths = data if isinstance(data, (list, tuple)) and _paths(data) else None
-    return [str(p) for p in paths] if paths else [fallback]
-
-
-def _guard_sets(guard_data: Any) -> list[Any]:
-    """One dataset directory, or a list of datasets (directories or scene sequences)."""
-    return [guard_data] if isinstance(guard_data, (str, os.PathLike)) else list(guard_data)
-
-
-def _check_held_out(guard_data: Any, data: Any) -> None:
-    """A guard set must be held out of the fine-tuning: the same directory in both is refused."""
-    if guard_data is None:
-        return
-    sets = _guard_sets(guard_data)
-    if not sets:
-        raise ConfigError('guard data: give at least one dataset')
-    guard_paths = {str(Path(g).resolve()) for g in sets if isinstance(g, (str, os.PathLike))}
-    both = sorted(guard_paths & set(map(str, _paths(data))))
-    if both:
-        raise ConfigError(f'{both[0]} is both training data and guard data: a guard set must '
-                          'hold scenes the fine-tuning never sees')
-
-
-def _guard_set(guard_data: Any, mcfg: MapConfig, tcfg: TileConfig, workers: int,
-               progress: bool) -> _GuardSet:
-    """Every train-split scene of the guard sets, voxelized as the validation scenes are."""
-    inputs, labels, groups, names = [], [], [], []
-    for k, one in enumerate(_guard_sets(guard_data)):
-        source, name = open_source(one)
-        if len(source) == 0:
-            raise DatasetError(f'guard data {name}: no scenes')
-        pack = ScenePack.from_scenes(source, np.arange(len(source)), progress,
-                                     'loading guard scenes')
-        x, y = voxelize(pack, mcfg, tcfg, workers, progress, 'voxelizing guard')
-        if not (y == 0).any():
-            raise DatasetError(f'guard data {name}: no scene with an obstacle')
-        inputs.append(x)
-        labels.append(y)
-        groups.append(np.full(len(y), k, np.int64))
-        names.append(name)
-    return _GuardSet(torch.cat(inputs), torch.cat(labels), np.concatenate(groups), names)
 
 
 def train_config_from(**kwargs: Any) -> TrainConfig:
