@@ -5,7 +5,7 @@
 # some synth3 rehearsed (every train family of obstacles, vegetation, terrain and sensor; by
 # default under the leniency penalty and with the initial model's calibration kept, guarded)
 # and its offset also guarded on obstacle families that no training, rehearsal or test set
-# holds: frames and wire mesh, WORKDIR/guard_thin)
+# holds (frames and wire mesh, WORKDIR/guard_thin)
 # -> the initial and the adapted model compared on:
 #   - the held-out vegetation: false alarms (safe tiles given P(safe) < 0.5) on the hybrid test
 #     split (flight 12) and on a further flight with obstacles neither saw (flight 13);
@@ -36,11 +36,10 @@ done
 "$lz" simulate --dataset hybrid --from "$work/clear_11.mcap" --from "$work/clear_14.mcap" \
     --from "$work/clear_15.mcap" --test-from "$work/clear_12.mcap" --out "$work/hybrid" \
     --seed 0 --quiet
-[ -f "$work/synth3_some/meta.json" ] || \
+# (simulate resumes a data set cut short and skips a complete one: meta.json is written first)
 "$lz" simulate --dataset synth3 --split train --scenes 1200 --out "$work/synth3_some" \
     --seed 0 --quiet
 # the guard set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
-[ -f "$work/guard_thin/meta.json" ] || \
 "$lz" simulate --dataset synth3 --families frame,mesh --split train --scenes 600 \
     --out "$work/guard_thin" --seed 0 --quiet
 guard_args=${GUARD_ARGS---guard-data $work/guard_thin}
