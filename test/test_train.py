@@ -361,6 +361,21 @@ def test_concatenated_sources_index_through():
         both[7]
 
 
+def test_the_parts_of_a_source_are_named_as_they_are_numbered():
+    from landing_zone.learn.lofo import SceneSubset
+    from landing_zone.learn.scenes import ConcatScenes, part_names, part_of
+    a, b = toy_scenes(3, seed=1), toy_scenes(4, seed=2)
+    both = ConcatScenes([a, b], ['hybrid', 'synth3_some'])
+    assert part_names(both, 'both') == ['hybrid', 'synth3_some']
+    sub = SceneSubset(both, np.array([1, 5]))  # through a subset, as part_of looks
+    assert part_of(sub, np.array([0, 1])).tolist() == [0, 1]
+    assert part_names(sub, 'sub') == ['hybrid', 'synth3_some']
+    assert part_names(a, 'a') == ['a']  # one source: the name given
+    assert ConcatScenes([a, b]).names == ['list', 'list']
+    with pytest.raises(ValueError, match='1 names for 2 sources'):
+        ConcatScenes([a, b], ['one'])
+
+
 def test_epoch_sampler_orders_and_caps():
     s = EpochSampler(np.array([10, 11, 12]), copies=2, seed=0)
     s.set_epoch(0)

@@ -23,7 +23,7 @@ from landing_zone.learn.guarded_calibration import guarded_offset
 from landing_zone.learn.samples import voxelize
 from landing_zone.learn.scenes import ScenePack, open_source
 
-__all__ = ['GuardSets', 'check_held_out', 'guard_offset', 'load_guard_sets', 'source_names']
+__all__ = ['GuardSets', 'check_held_out', 'guard_offset', 'load_guard_sets']
 
 
 @dataclass
@@ -47,12 +47,6 @@ def _paths(data: Any) -> list[Path]:
 def _sets(guard_data: Any) -> list[Any]:
     """One dataset directory, or a list of datasets (directories or scene sequences)."""
     return [guard_data] if isinstance(guard_data, (str, os.PathLike)) else list(guard_data)
-
-
-def source_names(data: Any, fallback: str) -> list[str]:
-    """The name of each training source (``train``'s ``data``), in the order of its groups."""
-    paths = data if isinstance(data, (list, tuple)) and _paths(data) else None
-    return [str(p) for p in paths] if paths else [fallback]
 
 
 def check_held_out(guard_data: Any, data: Any) -> None:
@@ -94,7 +88,8 @@ def guard_offset(new_logits: np.ndarray, init_logits: np.ndarray, labels: np.nda
                  sets: GuardSets | None = None,
                  set_logits: tuple[np.ndarray, np.ndarray] | None = None
                  ) -> tuple[float, dict[str, Any]]:
-    """The guarded offset over the validation tiles of each training source and, when given,
+    """The guarded offset over the validation tiles of each training source (``groups`` number
+    them, ``names`` name them: :func:`~landing_zone.learn.scenes.part_names`) and, when given,
     the guard sets' tiles (``set_logits``: the fine-tuned and the initial net's logits on
     ``sets.inputs``), each group named by its source.
 
@@ -115,5 +110,5 @@ def guard_offset(new_logits: np.ndarray, init_logits: np.ndarray, labels: np.nda
     b, report = guarded_offset(new_logits, init_logits, labels, temperature, offset,
                                groups=groups)
     for entry in report['groups']:
-        entry['source'] = names[entry['group']] if entry['group'] < len(names) else ''
+        entry['source'] = names[entry['group']]
     return b, {'fitted_on': fitted_on, **report}

@@ -152,7 +152,7 @@ def hold_out(source: Any, specs: Sequence[str]) -> SceneSubset | Any:
     parts = getattr(source, 'sources', None)
     if parts is not None:  # several directories, one after the other
         from landing_zone.learn.scenes import ConcatScenes
-        return ConcatScenes([hold_out(p, specs) for p in parts])
+        return ConcatScenes([hold_out(p, specs) for p in parts], getattr(source, 'names', None))
     fams = scene_families(source)
     keep = np.ones(len(source), dtype=bool)
     for axis, family in pairs:

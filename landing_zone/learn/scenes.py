@@ -131,8 +131,12 @@ class ConcatScenes:
     """Several scene sources as one (``len``, ``[i] -> Scene``, ``labels``), in order: e.g. a
     site's hybrid set with some synth2 scenes, so fine-tuning does not forget what it knew."""
 
-    def __init__(self, sources: Sequence[Any]) -> None:
+    def __init__(self, sources: Sequence[Any], names: Sequence[str] | None = None) -> None:
         self.sources = list(sources)
+        self.names = list(names) if names is not None else \
+            [type(s).__name__ for s in self.sources]
+        if len(self.names) != len(self.sources):
+            raise ValueError(f'{len(self.names)} names for {len(self.sources)} sources')
         self.labels = np.concatenate([labels_of(s) for s in self.sources]) \
             if self.sources else np.zeros(0, np.int64)
         self._ends = np.cumsum([len(s) for s in self.sources])
@@ -159,6 +163,17 @@ def part_of(source: Any, positions: np.ndarray) -> np.ndarray:
     return np.zeros(positions.size, np.int64)
 
 
+def part_names(source: Any, fallback: str) -> list[str]:
+    """The name of each part :func:`part_of` numbers: a :class:`ConcatScenes`' source names,
+    also through a subset of one; ``[fallback]`` for any other source."""
+    inner, picked = getattr(source, 'source', None), getattr(source, 'positions', None)
+    if inner is not None and picked is not None:
+        return part_names(inner, fallback)
+    if isinstance(source, ConcatScenes):
+        return list(source.names)
+    return [fallback]
+
+
 def open_source(data: Any) -> tuple[Any, str]:
     if isinstance(data, (str, os.PathLike)):
         from landing_zone.sim.shards import SceneDataset
@@ -168,7 +183,8 @@ def open_source(data: Any) -> tuple[Any, str]:
         if len(data) == 1:
             return open_source(data[0])
         opened = [open_source(d) for d in data]
-        return ConcatScenes([o[0] for o in opened]), ' + '.join(o[1] for o in opened)
+        return (ConcatScenes([o[0] for o in opened], [o[1] for o in opened]),
+                ' + '.join(o[1] for o in opened))
     if not hasattr(data, '__len__') or not hasattr(data, '__getitem__'):
         raise DatasetError('data must be a dataset directory (or a list of them) or a sequence '
                            'of scenes')

@@ -54,11 +54,11 @@ from landing_zone.judging.inference import bf16_supported, predict
 from landing_zone.judging.ensemble import AnyNet, SafetyEnsemble
 from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import tile_voxels
-from landing_zone.learn.guard_sets import (check_held_out, guard_offset, load_guard_sets,
-                                           source_names)
+from landing_zone.learn.guard_sets import check_held_out, guard_offset, load_guard_sets
 from landing_zone.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
                                         voxelize)
-from landing_zone.learn.scenes import ScenePack, labels_of, open_source, part_of, split_scenes
+from landing_zone.learn.scenes import (ScenePack, labels_of, open_source, part_names, part_of,
+                                       split_scenes)
 from landing_zone.learn.state import load_state, log_path, save_state, state_path, write_log
 
 __all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
@@ -447,7 +447,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                           _evaluate(init_net, guard.inputs, guard.labels, eval_precision)[0])
         temperature = float(src.temperature)
         offset, record = guard_offset(logits, init_logits, y_val, d.val_groups,
-                                      source_names(data, source_name), temperature,
+                                      part_names(source, source_name), temperature,
                                       float(src.offset), guard, set_logits)
         calibration_meta = {'calibration': {'method': 'guarded', 'initial_model': str(init),
                                             **record}}
