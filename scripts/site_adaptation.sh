@@ -32,11 +32,10 @@ for s in 11 14 15 12; do
 done
 [ -f "$work/site_13.mcap" ] || "$lz" simulate-flight --out "$work/site_13.mcap" \
     --vegetation "$veg" --seed 13
-[ -f "$work/hybrid/meta.json" ] || \
+# (simulate resumes a data set cut short and skips a complete one: meta.json is written first)
 "$lz" simulate --dataset hybrid --from "$work/clear_11.mcap" --from "$work/clear_14.mcap" \
     --from "$work/clear_15.mcap" --test-from "$work/clear_12.mcap" --out "$work/hybrid" \
     --seed 0 --quiet
-# (simulate resumes a data set cut short and skips a complete one: meta.json is written first)
 "$lz" simulate --dataset synth3 --split train --scenes 1200 --out "$work/synth3_some" \
     --seed 0 --quiet
 # the guard set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
