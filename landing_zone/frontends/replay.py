@@ -64,7 +64,7 @@ class ReplayResult:
         seconds: wall time of the whole replay, set-up and report included [s].
         assessments: assessment passes written to the output bag.
         top_view: (N, 3) float32 subsample of the returns (for the PNG).
-        timings: wall seconds by stage: ``setup`` (model, map), ``read`` (bag reading and
+        timings: wall seconds by stage: ``setup`` (model, map, warm-up), ``read`` (bag reading and
             deserializing), ``ingest`` (decoding and integrating clouds, poses), ``assess``
             (tiles and network, on a thread of its own, overlapped with the rest),
             ``assess_wait`` (what of it the loop waited for), ``write`` (building and writing
@@ -106,24 +106,25 @@ class _Outputs:
             for topic, msgtype in self.topics.items():
                 writer.add_topic(topic, msgtype)
 
-    def write(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int) -> None:
-        from msg_adapters import grid
+    def messages(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int
+                 ) -> list[tuple[str, Any]]:
+        """(topic, message) of one assessment, in the order they are written."""
+        from msg_adapters import MessageTypes, grid
 
+        t = self.types if self.types is not None else MessageTypes.rosbags()
+        base = f'/{NODE_NAME}'
+        return [(f'{base}/safety_grid', grid.safety_grid(assessment, stamp_ns, t)),
+                (f'{base}/safety_cloud', grid.safety_cloud(assessment, stamp_ns, t)),
+                (f'{base}/landing_sites', grid.landing_site_poses(assessment, stamp_ns, t)),
+                (f'{base}/markers', grid.markers(assessment, stamp_ns, types=t)),
+                ('/diagnostics', grid.diagnostics(diagnostics, stamp_ns, types=t))]
+
+    def write(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int) -> None:
         if self.writer is None:
             return
         t0 = time.perf_counter()
-        t = self.types
-        base = f'/{NODE_NAME}'
-        self.writer.write(f'{base}/safety_grid', stamp_ns,
-                          grid.safety_grid(assessment, stamp_ns, t))
-        self.writer.write(f'{base}/safety_cloud', stamp_ns,
-                          grid.safety_cloud(assessment, stamp_ns, t))
-        self.writer.write(f'{base}/landing_sites', stamp_ns,
-                          grid.landing_site_poses(assessment, stamp_ns, t))
-        self.writer.write(f'{base}/markers', stamp_ns,
-                          grid.markers(assessment, stamp_ns, types=t))
-        self.writer.write('/diagnostics', stamp_ns,
-                          grid.diagnostics(diagnostics, stamp_ns, types=t))
+        for topic, msg in self.messages(assessment, diagnostics, stamp_ns):
+            self.writer.write(topic, stamp_ns, msg)
         self.seconds += time.perf_counter() - t0
 
 
@@ -136,7 +137,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
            progress: bool = True, labels: str | os.PathLike[str] | None = None,
            overlap: bool = True, trajectory: str | os.PathLike[str] | None = None,
-           log: Callable[[str], None] | None = None) -> ReplayResult:
+           log: Callable[[str], None] | None = None, warm: bool = True) -> ReplayResult:
     """Assess a recorded flight as the node would, writing its outputs.
 
     Args:
@@ -158,6 +159,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
             None derives it from GPS time and scan angle. ``center`` is then in the file's
             CRS and units.
         log: called with each line worth telling the user (a survey's assumptions).
+        warm: run :func:`~landing_zone.frontends.ingest.warm_up` in the set-up, as the node
+            does (False: the first clouds and pass pay for loading the kernels, in the loop).
 
     Returns:
         A :class:`ReplayResult`.
@@ -170,6 +173,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     from tqdm import tqdm
 
     from landing_zone.assessor import Assessor
+    from landing_zone.frontends.ingest import warm_up
     from landing_zone.io.bags import BagWriter, read_messages, require_topics
     from landing_zone.io.survey import is_survey, read_survey
     from landing_zone.frontends.stream import Stream
@@ -200,12 +204,16 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     t_ingest = 0.0
     if writer is not None:
         writer.open()
-    t_loop = time.perf_counter()
-    cpu_loop = time.process_time()
-    setup = t_loop - t_start
     passes = _Passes(stream, overlap)
     try:
         outputs = _Outputs(writer)
+        if warm:
+            # as the node does before it listens: loading and compiling the kernels, torch's
+            # first pass and the first messages built fall in the set-up, not in the loop
+            warm_up(assessor, build=lambda a: outputs.messages(a, {}, 0))
+        t_loop = time.perf_counter()
+        cpu_loop = time.process_time()
+        setup = t_loop - t_start
         source = (survey.messages(points_topic, pose_topic, assessor.config.frame_id)
                   if survey is not None else read_messages(bag, [points_topic, pose_topic]))
         bar = tqdm(source, unit=' msg',
