@@ -564,27 +564,55 @@ def evaluate(
 @app.command(help='Fit a model\'s calibration on families it never saw: the logits of '
                   'leave-groups-out models (scripts/lofo.sh FOLDS=K) on the train scenes of the '
                   'families each held out, pooled; P(safe) = sigmoid(logit / T + b) fitted by '
-                  'maximum likelihood and written into OUT (the weights unchanged).\n\n'
-                  'Example:\n\n  landing-zone calibrate --model runs/lofo/final.safetensors '
+                  'maximum likelihood and written into OUT (the weights unchanged). A model '
+                  'fine-tuned from a calibrated one (train --init) has no fold models: --like '
+                  'INITIAL carries the initial model\'s out-of-family correction over to it, '
+                  'both nets fitted in family on the train scenes of --data (families both '
+                  'trained on, instances neither saw).\n\n'
+                  'Examples:\n\n  landing-zone calibrate --model runs/lofo/final.safetensors '
                   '--fold-model runs/lofo/fold0_of_4.safetensors --fold-model '
                   'runs/lofo/fold1_of_4.safetensors --data data/synth3 --out '
-                  'models/landing_zone.safetensors')
+                  'models/landing_zone.safetensors\n\n'
+                  '  landing-zone calibrate --model tuned.safetensors --like '
+                  'models/landing_zone.safetensors --data data/synth3_fresh --out '
+                  'tuned_cal.safetensors')
 def calibrate(
     model: Annotated[Path, typer.Option(help='The model to calibrate.')],
-    fold_model: Annotated[list[Path], typer.Option(
-        help='A model trained with --hold-out; repeat for each fold.')],
-    data: Annotated[Path, typer.Option(help='The synth3 directory they were trained on.')],
+    data: Annotated[Path, typer.Option(
+        help='synth3 directory: the one the fold models were trained on; with --like, fresh '
+             'scenes of families both models trained on.')],
     out: Annotated[Path, typer.Option(help='Model file to write (may be --model).')],
-    scenes: Annotated[int, typer.Option(help='At most this many scenes per fold model.')] = 2000,
+    fold_model: Annotated[Optional[list[Path]], typer.Option(
+        help='A model trained with --hold-out; repeat for each fold.')] = None,
+    like: Annotated[Optional[Path], typer.Option(
+        help='The calibrated model --model was fine-tuned from (instead of --fold-model).')]
+    = None,
+    scenes: Annotated[int, typer.Option(
+        help='At most this many scenes per fold model (with --like: in all).')] = 2000,
     offset: Annotated[bool, typer.Option(
-        help='Fit an offset b beside the temperature (else b = 0).')] = True,
+        help='Fit an offset b beside the temperature (else b = 0; not with --like).')] = True,
     seed: Annotated[int, typer.Option(help='Which scenes.')] = 0,
     workers: Annotated[int, typer.Option(help='Voxelizing processes.')] = 0,
 ) -> None:
-    from landing_zone.learn.recalibrate import calibrate as run_calibrate
+    from landing_zone.errors import ConfigError
+    from landing_zone.learn.recalibrate import calibrate as run_calibrate, calibrate_like
 
-    s = run_calibrate(model, fold_model, data, out, per_model=scenes, seed=seed, offset=offset,
-                      workers=workers, progress=True)
+    if (like is None) == (not fold_model):
+        raise ConfigError('give either --fold-model (one per fold) or --like INITIAL')
+    if like is not None:
+        if not offset:
+            raise ConfigError('--like carries T and b over; --no-offset does not apply')
+        s = calibrate_like(model, like, data, out, scenes=scenes, seed=seed, workers=workers,
+                           progress=True)
+        print(f'wrote {out}: T {s["temperature"]:.3f}, offset {s["offset"]:+.3f}, carried over '
+              f'from {like} (in family on {s["n"]} scenes, {s["n_unsafe"]} unsafe: this model '
+              f'T {s["in_family"]["model"]["temperature"]:.3f} b '
+              f'{s["in_family"]["model"]["offset"]:+.3f}, the initial T '
+              f'{s["in_family"]["initial"]["temperature"]:.3f} b '
+              f'{s["in_family"]["initial"]["offset"]:+.3f})')
+        return
+    s = run_calibrate(model, fold_model or [], data, out, per_model=scenes, seed=seed,
+                      offset=offset, workers=workers, progress=True)
     print(f'wrote {out}: T {s["temperature"]:.3f}, offset {s["offset"]:+.3f} fitted on {s["n"]} '
           f'out-of-family scenes ({s["n_unsafe"]} unsafe); there ECE '
           f'{s["out_of_family_ece"]["previous"]:.3f} -> {s["out_of_family_ece"]["fitted"]:.3f}, '

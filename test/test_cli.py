@@ -49,3 +49,17 @@ def test_train_guard_data_is_checked_in_one_line(tmp_path):
         assert res.returncode == 2 and 'Traceback' not in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1 and words in res.stderr, res.stderr
     assert not out.exists()
+
+
+def test_calibrate_wants_fold_models_or_like_in_one_line(tmp_path):
+    """calibrate fits on fold models' logits or carries an initial model's correction over:
+    exactly one of the two, else one line and exit 2, nothing written."""
+    out = tmp_path / 'm.safetensors'
+    model = 'models/landing_zone.safetensors'
+    for args in ((), ('--like', model, '--fold-model', model)):
+        res = run_cli('calibrate', '--model', model, '--data', str(tmp_path), '--out', str(out),
+                      *args)
+        assert res.returncode == 2 and 'Traceback' not in res.stderr, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+        assert 'either --fold-model' in res.stderr, res.stderr
+    assert not out.exists()

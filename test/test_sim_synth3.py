@@ -231,6 +231,38 @@ def test_calibrate_on_out_of_family_logits(small, tmp_path):
         out_of_family_logits([final], small)
 
 
+def test_calibrate_like_carries_the_initial_models_correction_over(small, tmp_path):
+    """A fine-tuned model gets its initial model's out-of-family correction on top of its own
+    in-family fit: the initial model like itself gets its own calibration back, another net
+    gets T = T_m / a, b = a b_m + b_o - a b_i (a = T_i / T_o); the weights stay bit for bit
+    (real training, tiny budget)."""
+    from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+    from landing_zone.learn.calibration import fit_platt
+    from landing_zone.learn.recalibrate import _in_family_logits, calibrate_like
+    from landing_zone.learn.train import TrainConfig, train
+    cfg = dict(epochs=1, augment_copies=1, batch_size=4, val_fraction=0.25)
+    initial, tuned = tmp_path / 'initial.safetensors', tmp_path / 'tuned.safetensors'
+    train(small, initial, TrainConfig(**cfg), progress=False)
+    net, meta = load_model(initial)
+    net.temperature, net.offset = 0.7, -0.9  # as `calibrate` leaves it
+    save_model(initial, net, meta)
+    train(small, tuned, TrainConfig(**cfg, seed=1), progress=False)
+    same = calibrate_like(initial, initial, small, tmp_path / 'same.safetensors', scenes=100)
+    assert same['temperature'] == pytest.approx(0.7) and same['offset'] == pytest.approx(-0.9)
+    out = tmp_path / 'tuned_cal.safetensors'
+    s = calibrate_like(tuned, initial, small, out, scenes=100)
+    (z_m, z_i), y, _ = _in_family_logits([tuned, initial], small, 100, 0, 0, False)
+    t_m, b_m = fit_platt(z_m, y)
+    t_i, b_i = fit_platt(z_i, y)
+    a = t_i / 0.7
+    assert s['temperature'] == pytest.approx(t_m / a)
+    assert s['offset'] == pytest.approx(a * b_m - 0.9 - a * b_i)
+    meta, before = read_metadata(out), read_metadata(tuned)
+    assert meta['weights_sha256'] == before['weights_sha256']
+    assert meta['calibration']['method'] == 'like' and meta['calibration']['n'] == len(y)
+    assert meta['temperature'] == pytest.approx(s['temperature'])
+
+
 def test_train_on_an_even_subset_keeps_whole_pairs(small, tmp_path):
     from landing_zone.judging.checkpoint import read_metadata
     from landing_zone.learn.train import TrainConfig, train

@@ -13,6 +13,14 @@ The fit is a transfer: the fold models saw fewer families than the final one, so
 are, if anything, less sure than its own. Whether the transfer holds is measured where nothing
 was fitted: on the test families (never in any training) of synth3's test split, by
 ``landing-zone evaluate --by-family``; the model card records both.
+
+A model fine-tuned from a calibrated one (``train --init``) has no fold models of its own.
+:func:`calibrate_like` carries the initial model's out-of-family correction over to it: both
+nets are fitted in family on the same scenes (scenes of families both trained on, neither saw
+these instances), and the map from the initial net's in-family calibration to its out-of-family
+one is applied to the fine-tuned net's in-family calibration. The assumption (the fine-tuned
+net is as much surer on familiar families than on unfamiliar ones as its initial model) is
+checked where nothing was fitted, as above.
 """
 from __future__ import annotations
 
@@ -25,7 +33,7 @@ import numpy as np
 
 from landing_zone.errors import ConfigError, DatasetError
 
-__all__ = ['out_of_family_logits', 'calibrate']
+__all__ = ['out_of_family_logits', 'calibrate', 'calibrate_like']
 
 
 def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | os.PathLike,
@@ -136,4 +144,98 @@ def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike]
     if progress:
         print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} on '
               f'{z.size} out-of-family scenes', file=sys.stderr)
+    return summary
+
+
+def _in_family_logits(models: Sequence[str | os.PathLike], data: str | os.PathLike,
+                      scenes: int, seed: int, workers: int, progress: bool
+                      ) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, Any]]]:
+    """Every model's logits on the same train-split scenes of ``data`` (voxelized once)."""
+    from landing_zone.judging.checkpoint import input_configs, load_model
+    from landing_zone.judging.inference import Predictor
+    from landing_zone.learn.samples import voxelize
+    from landing_zone.learn.scenes import ScenePack
+    from landing_zone.sim.shards import SceneDataset
+
+    loaded = [load_model(path, 'cpu') for path in models]
+    configs = [input_configs(meta) for _, meta in loaded]
+    if any(c != configs[0] for c in configs[1:]):
+        raise ConfigError('the models read different inputs (voxel or tile settings): '
+                          f'{", ".join(str(m) for m in models)}')
+    ds = SceneDataset(data, 'train')
+    idx = np.arange(len(ds))
+    if scenes and idx.size > scenes:
+        idx = np.sort(np.random.default_rng(seed).choice(idx, scenes, replace=False))
+    if not idx.size:
+        raise DatasetError(f'{data}: no train scene')
+    pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(data).name}')
+    x, y = voxelize(pack, *configs[0], workers, progress, f'voxelizing {Path(data).name}')
+    logits = []
+    for net, _ in loaded:
+        with Predictor(net) as predict:
+            logits.append(predict(x, logits=True))
+    info = [{'model': str(m), 'temperature': float(net.temperature),
+             'offset': float(net.offset)} for m, (net, _) in zip(models, loaded)]
+    return logits, y.numpy().astype(np.int64), info
+
+
+def calibrate_like(model: str | os.PathLike, initial: str | os.PathLike,
+                   data: str | os.PathLike, out: str | os.PathLike, scenes: int = 2000,
+                   seed: int = 0, workers: int = 0, progress: bool = False) -> dict[str, Any]:
+    """Calibrate a fine-tuned ``model`` as its ``initial`` model was calibrated out of family.
+
+    On the same scenes (train split of ``data``: families both nets trained on, instances
+    neither saw), both nets get an in-family Platt fit, ``(T_m, b_m)`` and ``(T_i, b_i)``. The
+    initial model's file carries its out-of-family calibration ``(T_o, b_o)``; in logits the
+    step from its in-family calibration to that one is ``u -> a u + c`` with
+    ``a = T_i / T_o`` and ``c = b_o - a b_i``. Applied to the fine-tuned net's in-family
+    calibration: ``T = T_m / a``, ``b = a b_m + c``. For the initial model itself this gives back
+    ``(T_o, b_o)``. The fine-tuned weights are written to ``out`` unchanged.
+
+    Returns:
+        What was fitted and on what (also stored in the model's metadata, ``calibration``).
+
+    Raises:
+        ConfigError: the models read different inputs.
+        DatasetError: ``data`` has no train scene.
+    """
+    from landing_zone.judging.checkpoint import load_model, save_model
+    from landing_zone.learn.calibration import expected_calibration_error, fit_platt
+
+    (z_m, z_i), y, info = _in_family_logits([model, initial], data, scenes, seed, workers,
+                                            progress)
+    t_m, b_m = fit_platt(z_m, y)
+    t_i, b_i = fit_platt(z_i, y)
+    t_o, b_o = info[1]['temperature'], info[1]['offset']
+    a = t_i / t_o
+    c = b_o - a * b_i
+    t, b = t_m / a, a * b_m + c
+    net, meta = load_model(model, 'cpu')
+    before = (float(net.temperature), float(net.offset))
+
+    def p(z: np.ndarray, temp: float, off: float) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-(z / temp + off)))
+
+    summary = {
+        'method': 'like',
+        'fitted_on': 'in-family logits of this model and of its initial model on the same '
+                     'scenes; the initial model\'s out-of-family correction carried over',
+        'initial': str(initial), 'data': str(data), 'seed': seed, 'n': int(y.size),
+        'n_unsafe': int((y == 0).sum()),
+        'in_family': {'model': {'temperature': t_m, 'offset': b_m},
+                      'initial': {'temperature': t_i, 'offset': b_i}},
+        'initial_calibration': {'temperature': t_o, 'offset': b_o},
+        'temperature': t, 'offset': b,
+        'previous': {'temperature': before[0], 'offset': before[1]},
+        # on the fitting scenes, both calibrated as shipped: the two should read alike
+        'in_family_ece': {'model': expected_calibration_error(p(z_m, t, b), y),
+                          'initial': expected_calibration_error(p(z_i, t_o, b_o), y)},
+        'in_family_unsafe_ge_0.9': {'model': float((p(z_m, t, b)[y == 0] >= 0.9).mean()),
+                                    'initial': float((p(z_i, t_o, b_o)[y == 0] >= 0.9).mean())},
+    }
+    net.temperature, net.offset = t, b
+    save_model(out, net, {**meta, 'calibration': summary})
+    if progress:
+        print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} '
+              f'(like {Path(initial).name}) on {y.size} in-family scenes', file=sys.stderr)
     return summary
