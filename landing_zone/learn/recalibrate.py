@@ -107,7 +107,7 @@ def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike]
     Returns:
         What was fitted and on what (also stored in the model's metadata, ``calibration``).
     """
-    from landing_zone.judging.checkpoint import load_model, save_model
+    from landing_zone.judging.checkpoint import load_model
     from landing_zone.learn.calibration import (binary_nll, expected_calibration_error,
                                                 fit_platt, fit_temperature)
 
@@ -138,13 +138,22 @@ def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike]
         'out_of_family_unsafe_ge_0.5': {'previous': float((p(*before)[y == 0] >= 0.5).mean()),
                                         'fitted': float((p(t, b)[y == 0] >= 0.5).mean())},
     }
-    net.temperature, net.offset = t, b
+    _write(net, meta, out, summary, progress, f'on {z.size} out-of-family scenes')
+    return summary
+
+
+def _write(net: Any, meta: dict[str, Any], out: str | os.PathLike, summary: dict[str, Any],
+           progress: bool, what: str) -> None:
+    """Write ``net`` with the calibration of ``summary`` to ``out``, its weights unchanged."""
+    from landing_zone.judging.checkpoint import save_model
+
+    before = (float(net.temperature), float(net.offset))
+    net.temperature, net.offset = summary['temperature'], summary['offset']
     # save_model writes the format, spec, temperature, offset and digest afresh
     save_model(out, net, {**meta, 'calibration': summary})
     if progress:
-        print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} on '
-              f'{z.size} out-of-family scenes', file=sys.stderr)
-    return summary
+        print(f'calibrate: T {before[0]:.3f} -> {net.temperature:.3f}, offset '
+              f'{before[1]:+.3f} -> {net.offset:+.3f} {what}', file=sys.stderr)
 
 
 def _in_family_logits(models: Sequence[str | os.PathLike], data: str | os.PathLike,
@@ -199,7 +208,7 @@ def calibrate_like(model: str | os.PathLike, initial: str | os.PathLike,
         ConfigError: the models read different inputs.
         DatasetError: ``data`` has no train scene.
     """
-    from landing_zone.judging.checkpoint import load_model, save_model
+    from landing_zone.judging.checkpoint import load_model
     from landing_zone.learn.calibration import expected_calibration_error, fit_platt
 
     (z_m, z_i), y, info = _in_family_logits([model, initial], data, scenes, seed, workers,
@@ -233,9 +242,6 @@ def calibrate_like(model: str | os.PathLike, initial: str | os.PathLike,
         'in_family_unsafe_ge_0.9': {'model': float((p(z_m, t, b)[y == 0] >= 0.9).mean()),
                                     'initial': float((p(z_i, t_o, b_o)[y == 0] >= 0.9).mean())},
     }
-    net.temperature, net.offset = t, b
-    save_model(out, net, {**meta, 'calibration': summary})
-    if progress:
-        print(f'calibrate: T {before[0]:.3f} -> {t:.3f}, offset {before[1]:+.3f} -> {b:+.3f} '
-              f'(like {Path(initial).name}) on {y.size} in-family scenes', file=sys.stderr)
+    _write(net, meta, out, summary, progress,
+           f'(like {Path(initial).name}) on {y.size} in-family scenes')
     return summary
