@@ -236,7 +236,8 @@ def test_calibrate_like_carries_the_initial_models_correction_over(small, tmp_pa
     in-family fit: the initial model like itself gets its own calibration back, another net
     gets T = T_m / a, b = a b_m + b_o - a b_i (a = T_i / T_o); the weights stay bit for bit
     (real training, tiny budget)."""
-    from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
+    from landing_zone.judging.checkpoint import (input_configs, load_model, read_metadata,
+                                                 save_model)
     from landing_zone.learn.calibration import fit_platt
     from landing_zone.learn.recalibrate import _in_family_logits, calibrate_like
     from landing_zone.learn.train import TrainConfig, train
@@ -251,7 +252,9 @@ def test_calibrate_like_carries_the_initial_models_correction_over(small, tmp_pa
     assert same['temperature'] == pytest.approx(0.7) and same['offset'] == pytest.approx(-0.9)
     out = tmp_path / 'tuned_cal.safetensors'
     s = calibrate_like(tuned, initial, small, out, scenes=100)
-    (z_m, z_i), y, _ = _in_family_logits([tuned, initial], small, 100, 0, 0, False)
+    (tuned_net, tuned_meta), (initial_net, _) = load_model(tuned), load_model(initial)
+    (z_m, z_i), y = _in_family_logits([tuned_net, initial_net], input_configs(tuned_meta),
+                                      small, 100, 0, 0, False)
     t_m, b_m = fit_platt(z_m, y)
     t_i, b_i = fit_platt(z_i, y)
     a = t_i / 0.7

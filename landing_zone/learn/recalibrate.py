@@ -156,21 +156,16 @@ def _write(net: Any, meta: dict[str, Any], out: str | os.PathLike, summary: dict
               f'{before[1]:+.3f} -> {net.offset:+.3f} {what}', file=sys.stderr)
 
 
-def _in_family_logits(models: Sequence[str | os.PathLike], data: str | os.PathLike,
+def _in_family_logits(nets: Sequence[Any], inputs: tuple[Any, Any], data: str | os.PathLike,
                       scenes: int, seed: int, workers: int, progress: bool
-                      ) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, Any]]]:
-    """Every model's logits on the same train-split scenes of ``data`` (voxelized once)."""
-    from landing_zone.judging.checkpoint import input_configs, load_model
+                      ) -> tuple[list[np.ndarray], np.ndarray]:
+    """Each net's logits on the same train-split scenes of ``data``, voxelized once with
+    ``inputs`` (their map and tile configurations)."""
     from landing_zone.judging.inference import Predictor
     from landing_zone.learn.samples import voxelize
     from landing_zone.learn.scenes import ScenePack
     from landing_zone.sim.shards import SceneDataset
 
-    loaded = [load_model(path, 'cpu') for path in models]
-    configs = [input_configs(meta) for _, meta in loaded]
-    if any(c != configs[0] for c in configs[1:]):
-        raise ConfigError('the models read different inputs (voxel or tile settings): '
-                          f'{", ".join(str(m) for m in models)}')
     ds = SceneDataset(data, 'train')
     idx = np.arange(len(ds))
     if scenes and idx.size > scenes:
@@ -178,14 +173,12 @@ def _in_family_logits(models: Sequence[str | os.PathLike], data: str | os.PathLi
     if not idx.size:
         raise DatasetError(f'{data}: no train scene')
     pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(data).name}')
-    x, y = voxelize(pack, *configs[0], workers, progress, f'voxelizing {Path(data).name}')
+    x, y = voxelize(pack, *inputs, workers, progress, f'voxelizing {Path(data).name}')
     logits = []
-    for net, _ in loaded:
+    for net in nets:
         with Predictor(net) as predict:
             logits.append(predict(x, logits=True))
-    info = [{'model': str(m), 'temperature': float(net.temperature),
-             'offset': float(net.offset)} for m, (net, _) in zip(models, loaded)]
-    return logits, y.numpy().astype(np.int64), info
+    return logits, y.numpy().astype(np.int64)
 
 
 def calibrate_like(model: str | os.PathLike, initial: str | os.PathLike,
@@ -208,18 +201,23 @@ def calibrate_like(model: str | os.PathLike, initial: str | os.PathLike,
         ConfigError: the models read different inputs.
         DatasetError: ``data`` has no train scene.
     """
-    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.checkpoint import input_configs, load_model
     from landing_zone.learn.calibration import expected_calibration_error, fit_platt
 
-    (z_m, z_i), y, info = _in_family_logits([model, initial], data, scenes, seed, workers,
-                                            progress)
+    net, meta = load_model(model, 'cpu')
+    init_net, init_meta = load_model(initial, 'cpu')
+    inputs = input_configs(meta)
+    if input_configs(init_meta) != inputs:
+        raise ConfigError(f'{model} and {initial} read different inputs (voxel or tile '
+                          'settings)')
+    (z_m, z_i), y = _in_family_logits([net, init_net], inputs, data, scenes, seed, workers,
+                                      progress)
     t_m, b_m = fit_platt(z_m, y)
     t_i, b_i = fit_platt(z_i, y)
-    t_o, b_o = info[1]['temperature'], info[1]['offset']
+    t_o, b_o = float(init_net.temperature), float(init_net.offset)
     a = t_i / t_o
     c = b_o - a * b_i
     t, b = t_m / a, a * b_m + c
-    net, meta = load_model(model, 'cpu')
     before = (float(net.temperature), float(net.offset))
 
     def p(z: np.ndarray, temp: float, off: float) -> np.ndarray:
