@@ -13,7 +13,11 @@ P(safe) >= 0.5 and >= 0.9 by:
   height around it);
 * placement: wholly inside the tile, or straddling its edge with half its radius inside;
 * vegetation family, terrain family, scan pattern, density band (returns/m^2 the scan gave),
-  sensor height band.
+  sensor height band;
+* the evidence inside the tile, from the returns labelled by what they hit: how many returns
+  the obstacle gave inside the tile's column (bands 1, 5, 20, 100), and the height of its part
+  there (the 95th percentile of those returns above a plane fitted to the ground returns
+  within a tile's width around the tile; bands 5, 10, 15, 30 cm).
 
 Every row is given for all obstacle scenes and for those exposed 15 cm or more (issue 15's bar
 is about solid obstacles of 15-50 cm, even hidden in grass). With ``--lofo RESULTS.json``
@@ -35,11 +39,15 @@ from typing import Any, Callable
 
 import numpy as np
 
+from landing_zone.sim.mesh import GROUND, OBSTACLE
+
 HEIGHT_BANDS = (0.10, 0.15, 0.30, 0.60)  # [m] exposed height band edges
 BURIAL_BANDS = (0.01, 0.03)  # [m]; synth3 test obstacles are buried 0-9 cm, a quarter < 0.5 cm
 DENSITY_BANDS = (1700.0, 2900.0)  # [returns/m^2] log-thirds of synth3's 1000-5000
 SENSOR_HEIGHT_BANDS = (8.0, 12.0, 16.0)  # [m] of synth3's 4-20
 BAR_HEIGHT = 0.15  # [m] issue 15's bar starts at obstacles of 15 cm
+EVIDENCE_BANDS = (1.0, 5.0, 20.0, 100.0)  # obstacle returns inside the tile's column
+INTRUSION_BANDS = (0.05, 0.10, 0.15, 0.30)  # [m] top of the obstacle's part inside the tile
 
 
 def band(v: float, edges: tuple[float, ...], unit: Callable[[float], str]) -> str:
@@ -57,10 +65,37 @@ def exposed_height(params: dict[str, Any]) -> float:
     return float(ob['size'][2]) - float(ob.get('embed', 0.0))
 
 
-def groups(params: dict[str, Any]) -> dict[str, str]:
-    """The scene's group on every axis of the breakdown."""
+def in_tile(points: np.ndarray, hit_class: np.ndarray, tile_size: float = 1.0
+            ) -> tuple[int, float]:
+    """The obstacle's returns inside the tile's column (the tile centred at the origin), and
+    the top of that part above the ground: the 95th percentile of their heights over a plane
+    fitted by least squares to the ground returns within a tile's width around the tile (the
+    scene's own z where there are fewer than 3); (0, 0.0) where it gave none."""
+    half = 0.5 * tile_size
+    inside = (np.abs(points[:, 0]) <= half) & (np.abs(points[:, 1]) <= half)
+    near = (np.abs(points[:, 0]) <= 2 * half) & (np.abs(points[:, 1]) <= 2 * half)
+    ob = points[inside & (hit_class == OBSTACLE)]
+    if not len(ob):
+        return 0, 0.0
+    ground = points[near & (hit_class == GROUND)]
+    plane = np.zeros(3)
+    if len(ground) >= 3:
+        a = np.c_[ground[:, :2], np.ones(len(ground))]
+        plane = np.linalg.lstsq(a, ground[:, 2], rcond=None)[0]
+    h = ob[:, 2] - (ob[:, :2] @ plane[:2] + plane[2])
+    return len(ob), float(np.quantile(h, 0.95))
+
+
+def groups(params: dict[str, Any], evidence: tuple[int, float] | None = None
+           ) -> dict[str, str]:
+    """The scene's group on every axis of the breakdown (the evidence axes with
+    ``evidence``, :func:`in_tile`'s)."""
     cm = (lambda m: f'{round(100 * m)} cm')
     s = params['sensor']
+    extra = {} if evidence is None else {
+        'obstacle returns in the tile': band(float(evidence[0]), EVIDENCE_BANDS,
+                                             lambda v: f'{v:.0f}'),
+        'height of its part in the tile': band(evidence[1], INTRUSION_BANDS, cm)}
     return {
         'exposed height': band(exposed_height(params), HEIGHT_BANDS, cm),
         'burial': band(float(params['obstacle'].get('embed', 0.0)), BURIAL_BANDS, cm),
@@ -72,6 +107,7 @@ def groups(params: dict[str, Any]) -> dict[str, str]:
         'density [returns/m^2]': band(float(params['density']), DENSITY_BANDS,
                                       lambda v: f'{v:.0f}'),
         'sensor height': band(float(s['height']), SENSOR_HEIGHT_BANDS, lambda v: f'{v:.0f} m'),
+        **extra,
     }
 
 
@@ -147,7 +183,8 @@ def main() -> None:
     scenes = np.asarray(doc['scenes'], np.int64)
     labels = np.asarray(doc['labels'], np.int64)
     methods = doc['methods']
-    params = [ds[int(i)].params if y == 0 else None for i, y in zip(scenes, labels)]
+    obstacles = {k: ds[int(i)] for k, (i, y) in enumerate(zip(scenes, labels)) if y == 0}
+    params = [obstacles[k].params if k in obstacles else None for k in range(len(scenes))]
     keep = [k for k, (y, q) in enumerate(zip(labels, params))
             if y == 0 and (args.families is None or q['family'] in args.families)
             and q['family'] not in args.exclude and exposed_height(q) < args.max_height]
@@ -165,7 +202,8 @@ def main() -> None:
                              f'{", ".join(methods)}')
         p = np.asarray(methods[name], np.float64)[keep]
         scored_by = name
-    rows = [groups(params[k]) for k in keep]
+    rows = [groups(params[k], None if obstacles[k].hit_class is None
+                   else in_tile(obstacles[k].points, obstacles[k].hit_class)) for k in keep]
     tall = np.array([exposed_height(params[k]) >= BAR_HEIGHT for k in keep])
     report = breakdown(p, rows, tall)
     print(f'{len(keep)} obstacle scenes of {args.data} ({doc["split"]}), scored by '
