@@ -13,6 +13,12 @@
 # obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
 # FINAL=FILE takes FILE as the final model instead of training one (the shipped model, say).
+# TRAIN_DATA may name several directories (space-separated): with FOLDS=K all are trained on
+# (calibrate and the per-family fleet read the first).
+# TUNE_DATA="DIR..." (with FOLDS=K and FINAL) judges a fine-tuned model by fold models of its
+# own recipe: each fold model is fine-tuned (`train --init`, the same hold-outs) on TUNE_DATA
+# with TUNE_ARGS (default: the shipped recipe's --lr 0.001 --epochs 4 --augment-copies 6
+# --cache-voxels 3), and carries FINAL's calibration (scripts/lofo_calibrated.py) when judged.
 # ENSEMBLE=1 (with FOLDS=K) also trains, for every pair of groups, a model without both, and
 # builds the ensemble of the K fold models (`landing-zone ensemble`: every family was seen by
 # K - 1 of them) beside its leave-groups-out stand-ins: for group g, the fold model g and the
@@ -26,7 +32,14 @@
 set -euo pipefail
 work=${1:-runs/lofo}
 lz=${LZ:-.venv/bin/landing-zone}
-train_data=${TRAIN_DATA:-data/synth3}
+read -ra train_dirs <<< "${TRAIN_DATA:-data/synth3}"
+train_data=${train_dirs[0]}  # what calibrate fits on (one directory)
+data_args=()
+for d in "${train_dirs[@]}"; do data_args+=(--data "$d"); done
+read -ra tune_dirs <<< "${TUNE_DATA:-}"
+tune_args=()
+for d in "${tune_dirs[@]}"; do tune_args+=(--data "$d"); done
+read -ra tune_opts <<< "${TUNE_ARGS:---lr 0.001 --epochs 4 --augment-copies 6 --cache-voxels 3}"
 test_data=${TEST_DATA:-data/synth3_test}
 epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_SAMPLES:-0}
 max_scenes=${MAX_SCENES:-0}
@@ -44,11 +57,24 @@ train_one() {  # NAME HOLD-OUT...
     [ -f "$out" ] && { echo "lofo: $out done"; return; }
     local holds=()
     for h in "$@"; do holds+=(--hold-out "$h"); done
-    /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train --data "$train_data" \
+    /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train "${data_args[@]}" \
         --out "$out" "${holds[@]}" --epochs "$epochs" --augment-copies "$copies" \
         --cache-voxels "$cache" --max-samples "$max_samples" --max-scenes "$max_scenes" \
         --workers "$workers" --seed "$seed" --resume \
         2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+}
+
+tune_one() {  # NAME INIT HOLD-OUT...: fine-tune INIT as FINAL was, then give it FINAL's calibration
+    local name=$1 init=$2; shift 2
+    local out="$work/$name.safetensors"
+    local holds=()
+    for h in "$@"; do holds+=(--hold-out "$h"); done
+    [ -f "$out" ] || /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train \
+        --init "$init" "${tune_args[@]}" --out "$out" "${holds[@]}" "${tune_opts[@]}" \
+        --workers "$workers" --seed "$seed" --resume \
+        2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+    [ -f "$work/${name}_cal.safetensors" ] || .venv/bin/python scripts/lofo_calibrated.py \
+        "$work/final.safetensors" "$out" --suffix _cal
 }
 
 # the final model first: it is what ships, and it alone already judges the test families
@@ -66,7 +92,14 @@ for g in family_folds($folds, $fold_seed): print(' '.join(g))")
     for k in "${!groups[@]}"; do
         # shellcheck disable=SC2086  # a group is a list of specs
         train_one "fold${k}_of_${folds}" ${groups[$k]}
-        lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
+        if [ ${#tune_args[@]} -gt 0 ]; then
+            # shellcheck disable=SC2086  # a group is a list of specs
+            tune_one "fold${k}_of_${folds}_tuned" "$work/fold${k}_of_${folds}.safetensors" \
+                ${groups[$k]}
+            lofo_models+=(--model "$work/fold${k}_of_${folds}_tuned_cal.safetensors")
+        else
+            lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
+        fi
     done
     if [ "${ENSEMBLE:-0}" = 1 ]; then
         members=()
