@@ -45,11 +45,21 @@ epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_S
 max_scenes=${MAX_SCENES:-0}
 workers=${WORKERS:-2}
 folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}; seed=${SEED:-0}
+if [ ${#tune_args[@]} -gt 0 ] && { [ "$folds" -eq 0 ] || [ -z "${FINAL:-}" ]; }; then
+    echo "lofo: TUNE_DATA needs FOLDS=K and FINAL (the fine-tuned model whose recipe is judged)" >&2
+    exit 2
+fi
 mkdir -p "$work"
 # The train families of synth3 (the test families are never trained on: the final model is
 # their leave-one-out model) and the vegetation families.
 families=$(.venv/bin/python -c 'from landing_zone.sim.families import TRAIN_FAMILIES as f; print(" ".join("obstacle:" + n for n in f))')
 vegetation=$(.venv/bin/python -c 'from landing_zone.sim.vegetation import VEGETATION_FAMILIES as f; print(" ".join("vegetation:" + n for n in f))')
+
+run_train() {  # NAME ARGS...: landing-zone train ARGS (resumable), timed, progress filtered
+    local name=$1; shift
+    /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train "$@" --workers "$workers" \
+        --seed "$seed" --resume 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+}
 
 train_one() {  # NAME HOLD-OUT...
     local name=$1; shift
@@ -57,11 +67,9 @@ train_one() {  # NAME HOLD-OUT...
     [ -f "$out" ] && { echo "lofo: $out done"; return; }
     local holds=()
     for h in "$@"; do holds+=(--hold-out "$h"); done
-    /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train "${data_args[@]}" \
-        --out "$out" "${holds[@]}" --epochs "$epochs" --augment-copies "$copies" \
-        --cache-voxels "$cache" --max-samples "$max_samples" --max-scenes "$max_scenes" \
-        --workers "$workers" --seed "$seed" --resume \
-        2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+    run_train "$name" "${data_args[@]}" --out "$out" "${holds[@]}" --epochs "$epochs" \
+        --augment-copies "$copies" --cache-voxels "$cache" --max-samples "$max_samples" \
+        --max-scenes "$max_scenes"
 }
 
 tune_one() {  # NAME INIT HOLD-OUT...: fine-tune INIT as FINAL was, then give it FINAL's calibration
@@ -69,10 +77,8 @@ tune_one() {  # NAME INIT HOLD-OUT...: fine-tune INIT as FINAL was, then give it
     local out="$work/$name.safetensors"
     local holds=()
     for h in "$@"; do holds+=(--hold-out "$h"); done
-    [ -f "$out" ] || /usr/bin/time -f "lofo: $name %e s wall, %U s user" "$lz" train \
-        --init "$init" "${tune_args[@]}" --out "$out" "${holds[@]}" "${tune_opts[@]}" \
-        --workers "$workers" --seed "$seed" --resume \
-        2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|lofo:)'
+    [ -f "$out" ] || run_train "$name" --init "$init" "${tune_args[@]}" --out "$out" \
+        "${holds[@]}" "${tune_opts[@]}"
     [ -f "$work/${name}_cal.safetensors" ] || .venv/bin/python scripts/lofo_calibrated.py \
         "$work/final.safetensors" "$out" --suffix _cal
 }
