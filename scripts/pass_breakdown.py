@@ -39,6 +39,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from landing_zone.config import TileConfig
 from landing_zone.sim.mesh import GROUND, OBSTACLE
 
 HEIGHT_BANDS = (0.10, 0.15, 0.30, 0.60)  # [m] exposed height band edges
@@ -65,8 +66,8 @@ def exposed_height(params: dict[str, Any]) -> float:
     return float(ob['size'][2]) - float(ob.get('embed', 0.0))
 
 
-def in_tile(points: np.ndarray, hit_class: np.ndarray, tile_size: float = 1.0
-            ) -> tuple[int, float]:
+def in_tile(points: np.ndarray, hit_class: np.ndarray,
+            tile_size: float = TileConfig().tile_size) -> tuple[int, float]:
     """The obstacle's returns inside the tile's column (the tile centred at the origin), and
     the top of that part above the ground: the 95th percentile of their heights over a plane
     fitted by least squares to the ground returns within a tile's width around the tile (the
@@ -183,8 +184,15 @@ def main() -> None:
     scenes = np.asarray(doc['scenes'], np.int64)
     labels = np.asarray(doc['labels'], np.int64)
     methods = doc['methods']
-    obstacles = {k: ds[int(i)] for k, (i, y) in enumerate(zip(scenes, labels)) if y == 0}
-    params = [obstacles[k].params if k in obstacles else None for k in range(len(scenes))]
+    # each obstacle scene read once: its params and the evidence in its tile (not its returns)
+    params: list[dict[str, Any] | None] = [None] * len(scenes)
+    evidence: list[tuple[int, float] | None] = [None] * len(scenes)
+    for k, (i, y) in enumerate(zip(scenes, labels)):
+        if y == 0:
+            scene = ds[int(i)]
+            params[k] = scene.params
+            if scene.hit_class is not None:
+                evidence[k] = in_tile(scene.points, scene.hit_class)
     keep = [k for k, (y, q) in enumerate(zip(labels, params))
             if y == 0 and (args.families is None or q['family'] in args.families)
             and q['family'] not in args.exclude and exposed_height(q) < args.max_height]
@@ -202,8 +210,7 @@ def main() -> None:
                              f'{", ".join(methods)}')
         p = np.asarray(methods[name], np.float64)[keep]
         scored_by = name
-    rows = [groups(params[k], None if obstacles[k].hit_class is None
-                   else in_tile(obstacles[k].points, obstacles[k].hit_class)) for k in keep]
+    rows = [groups(params[k], evidence[k]) for k in keep]
     tall = np.array([exposed_height(params[k]) >= BAR_HEIGHT for k in keep])
     report = breakdown(p, rows, tall)
     print(f'{len(keep)} obstacle scenes of {args.data} ({doc["split"]}), scored by '
