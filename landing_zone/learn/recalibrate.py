@@ -56,10 +56,7 @@ def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | o
         DatasetError: data without families, or no held-out scene.
     """
     from landing_zone.judging.checkpoint import input_configs, load_model
-    from landing_zone.judging.inference import Predictor
     from landing_zone.learn.lofo import parse_hold_out, scene_families
-    from landing_zone.learn.samples import voxelize
-    from landing_zone.learn.scenes import ScenePack
     from landing_zone.sim.shards import SceneDataset
 
     ds = SceneDataset(data, 'train')
@@ -80,13 +77,10 @@ def out_of_family_logits(fold_models: Sequence[str | os.PathLike], data: str | o
         if idx.size > per_model:
             rng = np.random.default_rng([seed, k])
             idx = np.sort(rng.choice(idx, per_model, replace=False))
-        pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(path).name}')
-        mcfg, tcfg = input_configs(meta)
-        x, y = voxelize(pack, mcfg, tcfg, workers, progress, f'voxelizing {Path(path).name}')
-        with Predictor(net) as predict:
-            z = predict(x, logits=True)
+        (z,), y = _scored([net], ds, idx, input_configs(meta), workers, progress,
+                          Path(path).name)
         logits.append(z)
-        labels.append(y.numpy().astype(np.int64))
+        labels.append(y)
         info.append({'model': str(path), 'hold_out': [f'{a}:{f}' for a, f in held],
                      'scenes': int(idx.size), 'unsafe': int((labels[-1] == 0).sum())})
     return np.concatenate(logits), np.concatenate(labels), info
@@ -161,9 +155,6 @@ def _in_family_logits(nets: Sequence[Any], inputs: tuple[Any, Any], data: str | 
                       ) -> tuple[list[np.ndarray], np.ndarray]:
     """Each net's logits on the same train-split scenes of ``data``, voxelized once with
     ``inputs`` (their map and tile configurations)."""
-    from landing_zone.judging.inference import Predictor
-    from landing_zone.learn.samples import voxelize
-    from landing_zone.learn.scenes import ScenePack
     from landing_zone.sim.shards import SceneDataset
 
     ds = SceneDataset(data, 'train')
@@ -172,8 +163,19 @@ def _in_family_logits(nets: Sequence[Any], inputs: tuple[Any, Any], data: str | 
         idx = np.sort(np.random.default_rng(seed).choice(idx, scenes, replace=False))
     if not idx.size:
         raise DatasetError(f'{data}: no train scene')
-    pack = ScenePack.from_scenes(ds, idx, progress, f'loading {Path(data).name}')
-    x, y = voxelize(pack, *inputs, workers, progress, f'voxelizing {Path(data).name}')
+    return _scored(nets, ds, idx, inputs, workers, progress, Path(data).name)
+
+
+def _scored(nets: Sequence[Any], ds: Any, idx: np.ndarray, inputs: tuple[Any, Any],
+            workers: int, progress: bool, name: str) -> tuple[list[np.ndarray], np.ndarray]:
+    """Each net's logits on scenes ``idx`` of ``ds``, voxelized once with ``inputs``, and the
+    scenes' labels (1 safe, 0 unsafe); ``name`` labels the progress bars."""
+    from landing_zone.judging.inference import Predictor
+    from landing_zone.learn.samples import voxelize
+    from landing_zone.learn.scenes import ScenePack
+
+    pack = ScenePack.from_scenes(ds, idx, progress, f'loading {name}')
+    x, y = voxelize(pack, *inputs, workers, progress, f'voxelizing {name}')
     logits = []
     for net in nets:
         with Predictor(net) as predict:
