@@ -25,6 +25,9 @@
 # pair models without g, K members none of which saw g. The ensemble is calibrated on those
 # (`landing-zone calibrate`), which carry that calibration to be judged
 # (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").
+# FOLDS=each leaves out one family at a time along the same path (one model per train family of
+# obstacles and per vegetation family, 19 on synth3, trained one after the other, named
+# lofo_AXIS_FAMILY): the yardstick of issue 15 for a recipe FOLDS=0 cannot train (TUNE_DATA).
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
@@ -45,8 +48,21 @@ epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_S
 max_scenes=${MAX_SCENES:-0}
 workers=${WORKERS:-2}
 folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}; seed=${SEED:-0}
-if [ ${#tune_args[@]} -gt 0 ] && { [ "$folds" -eq 0 ] || [ -z "${FINAL:-}" ]; }; then
-    echo "lofo: TUNE_DATA needs FOLDS=K and FINAL (the fine-tuned model whose recipe is judged)" >&2
+if [ "$folds" = each ]; then
+    grouped=1
+    if [ "${ENSEMBLE:-0}" = 1 ]; then
+        echo "lofo: ENSEMBLE=1 needs FOLDS=K (groups), not FOLDS=each" >&2
+        exit 2
+    fi
+elif [[ "$folds" =~ ^[0-9]+$ ]]; then
+    grouped=$(( folds > 0 ))
+else
+    echo "lofo: FOLDS must be a number of groups or 'each', got '$folds'" >&2
+    exit 2
+fi
+if [ ${#tune_args[@]} -gt 0 ] && { [ "$grouped" = 0 ] || [ -z "${FINAL:-}" ]; }; then
+    echo "lofo: TUNE_DATA needs FOLDS=K or FOLDS=each, and FINAL (the fine-tuned model whose" \
+        "recipe is judged)" >&2
     exit 2
 fi
 mkdir -p "$work"
@@ -92,19 +108,24 @@ else
      train_one final)
 fi
 lofo_models=()
-if [ "$folds" -gt 0 ]; then
-    mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
+if [ "$grouped" = 1 ]; then
+    if [ "$folds" = each ]; then
+        # synth3's train families (as family_folds deals them) and the vegetation families
+        read -ra groups <<< "$(.venv/bin/python -c 'from landing_zone.sim.synth3 import synth3_train_families as f; print(" ".join("obstacle:" + n for n in f()))') $vegetation"
+    else
+        mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
 for g in family_folds($folds, $fold_seed): print(' '.join(g))")
+    fi
     for k in "${!groups[@]}"; do
+        if [ "$folds" = each ]; then name="lofo_${groups[$k]//:/_}"; else name="fold${k}_of_${folds}"; fi
         # shellcheck disable=SC2086  # a group is a list of specs
-        train_one "fold${k}_of_${folds}" ${groups[$k]}
+        train_one "$name" ${groups[$k]}
         if [ ${#tune_args[@]} -gt 0 ]; then
             # shellcheck disable=SC2086  # a group is a list of specs
-            tune_one "fold${k}_of_${folds}_tuned" "$work/fold${k}_of_${folds}.safetensors" \
-                ${groups[$k]}
-            lofo_models+=(--model "$work/fold${k}_of_${folds}_tuned_cal.safetensors")
+            tune_one "${name}_tuned" "$work/$name.safetensors" ${groups[$k]}
+            lofo_models+=(--model "$work/${name}_tuned_cal.safetensors")
         else
-            lofo_models+=(--model "$work/fold${k}_of_${folds}.safetensors")
+            lofo_models+=(--model "$work/$name.safetensors")
         fi
     done
     if [ "${ENSEMBLE:-0}" = 1 ]; then
