@@ -143,8 +143,27 @@ def test_family_figures_and_the_lofo_table():
     # The LOFO row of 'b' is the model that held it out.
     assert rep['lofo']['obstacle']['b']['model'] == 'two'
     assert rep['lofo']['obstacle']['b']['auc'] == 1.0 and 'a' not in rep['lofo']['obstacle']
+    # Nothing here trained on synth3: no in-family figures beside it.
+    assert rep['lofo']['obstacle']['b']['in_family'] is None
+    # Pooled: each scene of a family with a LOFO row, scored by that row's model.
+    pooled = rep['lofo_pooled']['obstacle']
+    assert pooled['families'] == 1 and pooled['n'] == 2 and pooled['auc'] == 1.0
     text = markdown_families(rep)
     assert text.startswith('Leave one family out') and '| obstacle:b | 2 (1) | 1.000 |' in text
+    assert '| obstacle: all 1 families pooled | 2 (1) |' in text
+    # Trained on synth3 and not holding 'b' out: 'one' is 'b' in family (and 'a' has no row).
+    rep = family_report([r1, r2], params, labels, held_out={'two': [('obstacle', 'b')]},
+                        trained_on_synth3={'one': True, 'two': True})
+    seen = rep['lofo']['obstacle']['b']['in_family']
+    assert seen['model'] == 'one' and seen['auc'] == 0.0 and seen['unsafe_ge_0.9'] == 1.0
+    assert '| two | 0.000 / 100.0% / 100.0% |' in markdown_families(rep)
+    # Two families held out by two models: pooled, each scene by its own family's model.
+    r3 = R('three', [0.1, 0.9, 0.2, 0.3])  # wrong on 'a' (held out), not on 'b'
+    rep = family_report([r2, r3], params, labels,
+                        held_out={'two': [('obstacle', 'b')], 'three': [('obstacle', 'a')]})
+    pooled = rep['lofo_pooled']['obstacle']
+    assert pooled['families'] == 2 and pooled['n'] == 4
+    assert pooled['unsafe_ge_0.5'] == 0.5 and pooled['safe_lt_0.5'] == 0.5  # 'a' by 'three'
     f = family_figures(np.array([0.95, 0.6, 0.2]), np.array([0, 0, 1]))
     assert f['unsafe_ge_0.5'] == 1.0 and f['unsafe_ge_0.9'] == 0.5 and f['n_unsafe'] == 2
     assert json.dumps(rep)  # JSON-ready

@@ -228,7 +228,13 @@ def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.nda
 
     Returns:
         ``{'methods': {name: {axis: {family: figures}}}, 'lofo': {axis: {family: figures +
-        'model'}}}``; families without a method that left them out are missing from 'lofo'.
+        'model' + 'in_family'}}, 'lofo_pooled': {axis: figures + 'families'}}``. Families
+        without a method that left them out are missing from 'lofo'. ``in_family`` is the same
+        family judged by the first method trained on it (on synth3, without holding it out:
+        other instances of a family it saw), with its 'model', or None: beside the held-out
+        figures it says what leaving the family out cost. 'lofo_pooled' scores every scene of
+        an axis whose family has a 'lofo' row by that row's model, so the shares pool the
+        families (each scene judged by a model that never saw its family).
     """
     from landing_zone.sim.families import TEST_FAMILIES
     fams = _families_of_params(params)
@@ -238,6 +244,8 @@ def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.nda
     probabilistic = probabilistic or {}
     methods: dict[str, Any] = {}
     lofo: dict[str, dict[str, Any]] = {a: {} for a in AXES}
+    seen: dict[tuple[str, str], dict[str, Any]] = {}  # (axis, family) -> first trained on it
+    scores = {r.name: np.asarray(r.scores, np.float64) for r in results}
     for r in results:
         prob = probabilistic.get(r.name, True)
         per: dict[str, Any] = {}
@@ -248,12 +256,28 @@ def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.nda
             per[axis] = {}
             for family in sorted(set(fams[axis])):
                 sel = fams[axis] == family
-                fig = family_figures(np.asarray(r.scores)[sel], y[sel], prob)
+                fig = family_figures(scores[r.name][sel], y[sel], prob)
                 per[axis][family] = fig
-                if (axis, family) in unseen and prob and family not in lofo[axis]:
-                    lofo[axis][family] = {**fig, 'model': r.name}
+                if not prob:
+                    continue
+                if (axis, family) in unseen:
+                    lofo[axis].setdefault(family, {**fig, 'model': r.name})
+                elif trained_on_synth3.get(r.name):
+                    seen.setdefault((axis, family), {**fig, 'model': r.name})
         methods[r.name] = per
-    return {'methods': methods, 'lofo': {a: v for a, v in lofo.items() if v}}
+    pooled: dict[str, Any] = {}
+    for axis, rows in lofo.items():
+        for family, row in rows.items():
+            row['in_family'] = seen.get((axis, family))
+        if rows:
+            sel = np.isin(fams[axis], list(rows))
+            p = np.zeros(len(y))
+            for family, row in rows.items():
+                at = fams[axis] == family
+                p[at] = scores[row['model']][at]
+            pooled[axis] = {**family_figures(p[sel], y[sel]), 'families': len(rows)}
+    return {'methods': methods, 'lofo': {a: v for a, v in lofo.items() if v},
+            'lofo_pooled': pooled}
 
 
 def _fmt(v: float | None, pct: bool = False) -> str:
@@ -275,12 +299,22 @@ def markdown_families(report: dict[str, Any], axes: Sequence[str] = AXES) -> str
                 f'{_fmt(f["ece"])} | {_fmt(f["unsafe_ge_0.5"], True)} | '
                 f'{_fmt(f["unsafe_ge_0.9"], True)} | {_fmt(f["safe_lt_0.5"], True)} |')
 
+    def in_family(f: dict[str, Any]) -> str:
+        s = f.get('in_family')
+        return ('- |' if not s else f' {_fmt(s["auc"])} / {_fmt(s["unsafe_ge_0.5"], True)} / '
+                f'{_fmt(s["unsafe_ge_0.9"], True)} |')
+
     if report.get('lofo'):
-        lines += ['Leave one family out: each family judged by a model that never saw it.', '',
-                  head + ' model |', rule + '---|']
+        lines += ['Leave one family out: each family judged by a model that never saw it; '
+                  'beside it, the same family by a model trained on other instances of it.', '',
+                  head + ' model | trained on it: AUC / P>=0.5 / P>=0.9 |', rule + '---|---|']
+        pooled = report.get('lofo_pooled', {})
         for axis in axes:
             for family, f in sorted(report['lofo'].get(axis, {}).items()):
-                lines.append(row(f'{axis}:{family}', f) + f' {f["model"]} |')
+                lines.append(row(f'{axis}:{family}', f) + f' {f["model"]} |' + in_family(f))
+            if axis in pooled:
+                lines.append(row(f'{axis}: all {pooled[axis]["families"]} families pooled',
+                                 pooled[axis]) + ' each its own | |')
         lines.append('')
     for name, per in report['methods'].items():
         for axis in axes:
