@@ -22,12 +22,15 @@ P(safe) >= 0.5 and >= 0.9 by:
 Every row is given for all obstacle scenes and for those exposed 15 cm or more (issue 15's bar
 is about solid obstacles of 15-50 cm, even hidden in grass). With ``--lofo RESULTS.json``
 (``evaluate --by-family --json`` of the same run) each scene is scored instead by the model
-that never saw its obstacle family (the 'lofo' table's model), as the headline table is::
+that never saw its obstacle family (the 'lofo' table's model), as the headline table is; with
+``--lofo-axis vegetation``, by the model that never saw its vegetation family.
+``--vegetation F...`` keeps the scenes in those vegetation families::
 
     landing-zone evaluate --data DIR --by-family --model M [--model FOLD...] \\
         --json results.json --scores scores.json
-    python scripts/pass_breakdown.py DIR scores.json [--method NAME | --lofo results.json] \\
-        [--families F... | --exclude F...] [--max-height M] [--json breakdown.json]
+    python scripts/pass_breakdown.py DIR scores.json [--method NAME | --lofo results.json \\
+        [--lofo-axis vegetation]] [--families F... | --exclude F...] [--vegetation F...] \\
+        [--max-height M] [--json breakdown.json]
 """
 from __future__ import annotations
 
@@ -171,8 +174,13 @@ def main() -> None:
     ap.add_argument('--lofo', type=Path, default=None,
                     help='evaluate --by-family --json of the same run: score each scene by '
                          'the model that never saw its obstacle family')
+    ap.add_argument('--lofo-axis', choices=('obstacle', 'vegetation'), default='obstacle',
+                    help='with --lofo: the axis whose held-out model scores a scene (vegetation: '
+                         'the model that never saw its vegetation family)')
     ap.add_argument('--families', nargs='*', default=None,
                     help='only these obstacle families (default: all)')
+    ap.add_argument('--vegetation', nargs='*', default=None,
+                    help='only scenes in these vegetation families (default: all)')
     ap.add_argument('--exclude', nargs='*', default=(),
                     help='leave these obstacle families out (e.g. coil: see-through, not solid)')
     ap.add_argument('--max-height', type=float, default=math.inf,
@@ -195,14 +203,20 @@ def main() -> None:
                 evidence[k] = in_tile(scene.points, scene.hit_class)
     keep = [k for k, (y, q) in enumerate(zip(labels, params))
             if y == 0 and (args.families is None or q['family'] in args.families)
-            and q['family'] not in args.exclude and exposed_height(q) < args.max_height]
+            and q['family'] not in args.exclude and exposed_height(q) < args.max_height
+            and (args.vegetation is None or q['vegetation']['family'] in args.vegetation)]
     if args.lofo is not None:
-        table = json.loads(args.lofo.read_text())['families']['lofo']['obstacle']
-        missing = sorted({params[k]['family'] for k in keep} - set(table))
+        axis = args.lofo_axis
+        table = json.loads(args.lofo.read_text())['families']['lofo'].get(axis, {})
+
+        def family(q: dict[str, Any]) -> str:
+            return q['family'] if axis == 'obstacle' else q['vegetation']['family']
+
+        missing = sorted({family(params[k]) for k in keep} - set(table))
         if missing:
-            raise SystemExit(f'{args.lofo}: no model held out {", ".join(missing)}')
-        p = np.array([methods[table[params[k]['family']]['model']][k] for k in keep])
-        scored_by = 'per family, the model that never saw it'
+            raise SystemExit(f'{args.lofo}: no model held out {axis} {", ".join(missing)}')
+        p = np.array([methods[table[family(params[k])]['model']][k] for k in keep])
+        scored_by = f'per {axis} family, the model that never saw it'
     else:
         name = args.method or next(iter(methods))
         if name not in methods:

@@ -301,7 +301,7 @@ def markdown_families(report: dict[str, Any], axes: Sequence[str] = AXES) -> str
 
     def in_family(f: dict[str, Any]) -> str:
         s = f.get('in_family')
-        return ('- |' if not s else f' {_fmt(s["auc"])} / {_fmt(s["unsafe_ge_0.5"], True)} / '
+        return (' - |' if not s else f' {_fmt(s["auc"])} / {_fmt(s["unsafe_ge_0.5"], True)} / '
                 f'{_fmt(s["unsafe_ge_0.9"], True)} |')
 
     if report.get('lofo'):
@@ -314,7 +314,7 @@ def markdown_families(report: dict[str, Any], axes: Sequence[str] = AXES) -> str
                 lines.append(row(f'{axis}:{family}', f) + f' {f["model"]} |' + in_family(f))
             if axis in pooled:
                 lines.append(row(f'{axis}: all {pooled[axis]["families"]} families pooled',
-                                 pooled[axis]) + ' each its own | |')
+                                 pooled[axis]) + ' each family by its own | |')
         lines.append('')
     for name, per in report['methods'].items():
         for axis in axes:
