@@ -164,7 +164,9 @@ def markdown(report: dict[str, Any]) -> str:
 
 
 def main() -> None:
+    from landing_zone.learn.lofo import lofo_scores
     from landing_zone.sim.shards import SceneDataset
+    from landing_zone.sim.synth3 import families_of
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('data', type=Path, help='the synth3 directory the scores were made on')
@@ -204,18 +206,16 @@ def main() -> None:
     keep = [k for k, (y, q) in enumerate(zip(labels, params))
             if y == 0 and (args.families is None or q['family'] in args.families)
             and q['family'] not in args.exclude and exposed_height(q) < args.max_height
-            and (args.vegetation is None or q['vegetation']['family'] in args.vegetation)]
+            and (args.vegetation is None
+                 or families_of(q)['vegetation'] in args.vegetation)]
     if args.lofo is not None:
         axis = args.lofo_axis
         table = json.loads(args.lofo.read_text())['families']['lofo'].get(axis, {})
-
-        def family(q: dict[str, Any]) -> str:
-            return q['family'] if axis == 'obstacle' else q['vegetation']['family']
-
-        missing = sorted({family(params[k]) for k in keep} - set(table))
+        fams = np.array([families_of(params[k])[axis] for k in keep], dtype=object)
+        missing = sorted(set(fams) - set(table))
         if missing:
             raise SystemExit(f'{args.lofo}: no model held out {axis} {", ".join(missing)}')
-        p = np.array([methods[table[family(params[k])]['model']][k] for k in keep])
+        p = lofo_scores(table, fams, {m: np.asarray(v)[keep] for m, v in methods.items()})
         scored_by = f'per {axis} family, the model that never saw it'
     else:
         name = args.method or next(iter(methods))

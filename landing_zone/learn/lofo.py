@@ -30,7 +30,7 @@ from landing_zone.errors import ConfigError, DatasetError
 
 __all__ = ['AXES', 'parse_hold_out', 'scene_families', 'SceneSubset', 'hold_out',
            'dataset_names', 'family_folds', 'family_figures', 'family_report',
-           'family_report_for', 'markdown_families']
+           'family_report_for', 'lofo_scores', 'markdown_families']
 
 AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')
 
@@ -201,6 +201,18 @@ def family_figures(p_safe: np.ndarray, labels: np.ndarray, probabilistic: bool =
         'safe_lt_0.5': share(p < 0.5, safe)}
 
 
+def lofo_scores(rows: dict[str, dict[str, Any]], families: np.ndarray,
+                scores: dict[str, Any]) -> np.ndarray:
+    """Every scene's score by the model that never saw its family: ``rows`` an axis of the
+    LOFO table (family -> its row, naming the ``model``), ``families`` the scenes' families on
+    that axis, ``scores`` per method name the scenes' scores. NaN where no row has the family."""
+    out = np.full(len(families), np.nan)
+    for family, row in rows.items():
+        at = families == family
+        out[at] = np.asarray(scores[row['model']], np.float64)[at]
+    return out
+
+
 def _families_of_params(params: Sequence[dict]) -> dict[str, np.ndarray]:
     from landing_zone.sim.synth3 import families_of
     try:
@@ -270,11 +282,8 @@ def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.nda
         for family, row in rows.items():
             row['in_family'] = seen.get((axis, family))
         if rows:
-            sel = np.isin(fams[axis], list(rows))
-            p = np.zeros(len(y))
-            for family, row in rows.items():
-                at = fams[axis] == family
-                p[at] = scores[row['model']][at]
+            p = lofo_scores(rows, fams[axis], scores)
+            sel = ~np.isnan(p)
             pooled[axis] = {**family_figures(p[sel], y[sel]), 'families': len(rows)}
     return {'methods': methods, 'lofo': {a: v for a, v in lofo.items() if v},
             'lofo_pooled': pooled}
