@@ -28,6 +28,8 @@
 # FOLDS=each leaves out one family at a time along the same path (one model per train family of
 # obstacles and per vegetation family, 19 on synth3, trained one after the other, named
 # lofo_AXIS_FAMILY): the yardstick of issue 15 for a recipe FOLDS=0 cannot train (TUNE_DATA).
+# ONLY="AXIS:FAMILY..." (with FOLDS=each) trains and judges those families alone (a session's
+# share of the 19, say); the others' finished models are left as they are.
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
@@ -48,6 +50,10 @@ epochs=${EPOCHS:-3}; copies=${COPIES:-4}; cache=${CACHE:-2}; max_samples=${MAX_S
 max_scenes=${MAX_SCENES:-0}
 workers=${WORKERS:-2}
 folds=${FOLDS:-0}; fold_seed=${FOLD_SEED:-0}; seed=${SEED:-0}
+if [ -n "${ONLY:-}" ] && [ "$folds" != each ]; then
+    echo "lofo: ONLY needs FOLDS=each" >&2
+    exit 2
+fi
 if [ "$folds" = each ]; then
     grouped=1
     if [ "${ENSEMBLE:-0}" = 1 ]; then
@@ -112,6 +118,14 @@ if [ "$grouped" = 1 ]; then
     if [ "$folds" = each ]; then
         # synth3's train families (as family_folds deals them) and the vegetation families
         read -ra groups <<< "$(.venv/bin/python -c 'from landing_zone.sim.synth3 import synth3_train_families as f; print(" ".join("obstacle:" + n for n in f()))') $vegetation"
+        if [ -n "${ONLY:-}" ]; then
+            read -ra only <<< "$ONLY"
+            for spec in "${only[@]}"; do
+                [[ " ${groups[*]} " == *" $spec "* ]] || {
+                    echo "lofo: ONLY names '$spec', not one of: ${groups[*]}" >&2; exit 2; }
+            done
+            groups=("${only[@]}")
+        fi
     else
         mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
 for g in family_folds($folds, $fold_seed): print(' '.join(g))")
