@@ -188,4 +188,4 @@ else
 fi
 models=(--model "$work/final.safetensors" "${lofo_models[@]}")
 "$lz" evaluate --data "$test_data" --by-family "${models[@]}" --workers "$workers" \
-    --json "$work/lofo.json" | tee "$work/lofo.md"
+    --json "$work/lofo.json" --scores "$work/lofo_scores.json" | tee "$work/lofo.md"
