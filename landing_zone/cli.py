@@ -551,13 +551,17 @@ def evaluate(
     scores: Annotated[Optional[Path], typer.Option(
         help='Write every scene\'s score by every method here (JSON: scene indices, labels, '
              'scores per method), for breakdowns by scene parameters.')] = None,
+    guard: Annotated[bool, typer.Option(
+        help='Judge every CNN as the assessor does: P(safe) capped where the guard finds '
+             'opaque structure above the tile\'s ground plane (rows named "... + guard").')
+    ] = False,
 ) -> None:
     from landing_zone.learn.evaluate import evaluate as run_evaluate
 
     res = run_evaluate(data, model, baselines=baselines, json_path=json_path, out_dir=out_dir,
                        split=split.value, workers=workers, fit_scenes=fit_scenes,
                        max_scenes=max_scenes, seed=seed, by_family=by_family,
-                       scores_path=scores)
+                       scores_path=scores, guard=guard)
     print(res['table'], end='')
 
 

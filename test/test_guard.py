@@ -257,3 +257,33 @@ def test_the_guard_on_simulated_patches_fires_on_boxes_not_on_open_ground():
     labels = np.array([s.label for s in scenes])
     assert found.fired.tolist() == (labels == 0).tolist()
     assert np.all(found.hits[labels == 0] >= GuardConfig().min_cluster_hits)
+
+
+def test_evaluate_with_the_guard_judges_as_the_assessor_does(tmp_path):
+    """evaluate(..., guard=True) caps each CNN's P(safe) where the guard fires on the scene
+    (here the toy boxes), leaves the other scenes' P(safe) as the network gave it, and names
+    the rows '... + guard' (the shipped model, real scoring)."""
+    from landing_zone.assessor import default_model_path
+    from landing_zone.judging.checkpoint import load_model, save_model
+    from landing_zone.learn.evaluate import evaluate_scenes
+    from test_train import toy_scene
+    rng = np.random.default_rng(3)
+    scenes = [toy_scene(rng, i % 2 == 0, n=40000) for i in range(6)]
+    unsafe = np.array([s.label == 0 for s in scenes])
+    # the shipped net made lenient (its offset raised) so that the cap has P(safe) to lower
+    net, meta = load_model(default_model_path())
+    net.temperature, net.offset = 1000.0, 3.0  # P(safe) near 0.95 everywhere
+    lenient = tmp_path / 'lenient.safetensors'
+    save_model(lenient, net, meta)
+    runs = {}
+    for guard in (False, True):
+        out = tmp_path / f'scores_{guard}.json'
+        res = evaluate_scenes(scenes, 'toy', 'test', lenient, scores_path=out, guard=guard)
+        (name, scores), = json.loads(out.read_text())['methods'].items()
+        runs[guard] = name, np.asarray(scores), res
+    (net, plain, _), (name, capped, res) = runs[False], runs[True]
+    assert name == f'{net} + guard' and f'| {name} |' in res['table']
+    assert res['methods'][name]['ece'] is not None
+    assert np.all(capped[unsafe] <= GuardConfig().max_p_safe + 1e-6)
+    assert np.allclose(capped[~unsafe], plain[~unsafe])
+    assert plain[unsafe].max() > GuardConfig().max_p_safe  # the cap had something to do

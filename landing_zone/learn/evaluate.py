@@ -113,12 +113,10 @@ def evaluate_methods(methods: list[Any], inputs: Any, labels: np.ndarray,
     Raises:
         DatasetError: labels of one class only, or a method returned the wrong number of scores.
     """
-    from sklearn.metrics import roc_curve
-
     y = np.asarray(labels).reshape(-1).astype(np.int64)
     if y.size == 0 or y.min() == y.max():
         raise DatasetError('evaluation needs safe and unsafe volumes')
-    out = []
+    out: list[MethodResult] = []
     for m in methods:
         if hasattr(m, 'fit') and train_inputs is not None:
             if progress:
@@ -133,13 +131,38 @@ def evaluate_methods(methods: list[Any], inputs: Any, labels: np.ndarray,
         if scores.shape != y.shape or not np.all(np.isfinite(scores)):
             raise DatasetError(f'{m.name} returned {scores.size} scores (finite: '
                                f'{bool(np.all(np.isfinite(scores)))}) for {y.size} volumes')
-        fpr, tpr, _ = roc_curve(y, scores, pos_label=1)
-        from sklearn.metrics import roc_auc_score
-        auc = float(roc_auc_score(y, scores))
-        rel = reliability(scores, y, ECE_BINS) if _is_probabilistic(m, scores) else None
-        out.append(MethodResult(m.name, scores, auc, None if rel is None else rel.ece, ms,
-                                fpr, tpr, rel))
+        out.append(measure(m.name, scores, y, ms, _is_probabilistic(m, scores)))
     return out
+
+
+def measure(name: str, scores: np.ndarray, labels: np.ndarray, ms_per_volume: float,
+            probabilistic: bool) -> MethodResult:
+    """A method's figures from its scores: ROC, AUC and, for P(safe), the reliability
+    diagram and ECE."""
+    from sklearn.metrics import roc_auc_score, roc_curve
+
+    fpr, tpr, _ = roc_curve(labels, scores, pos_label=1)
+    auc = float(roc_auc_score(labels, scores))
+    rel = reliability(scores, labels, ECE_BINS) if probabilistic else None
+    return MethodResult(name, scores, auc, None if rel is None else rel.ece, ms_per_volume,
+                        fpr, tpr, rel)
+
+
+def _guarded(results: list[MethodResult], pack: Any, key: tuple, y: np.ndarray,
+             found_for: dict[tuple, Any], progress: bool) -> list[MethodResult]:
+    """The CNN results with the assessor's guard applied to their P(safe), as on the robot
+    (:mod:`landing_zone.learn.scene_guard`): named '... + guard'. ``found_for`` caches the
+    guard's findings per voxelization."""
+    from landing_zone.config import GuardConfig
+    from landing_zone.judging.guard import guard_p_safe
+    from landing_zone.learn.scene_guard import guard_scenes
+
+    cfg = GuardConfig()
+    if key not in found_for:
+        found_for[key] = guard_scenes(pack, *_configs(key), cfg, progress=progress)
+    found = found_for[key]
+    return [measure(f'{r.name} + guard', guard_p_safe(r.scores, found, cfg).astype(np.float64),
+                    y, r.ms_per_volume, True) for r in results]
 
 
 def markdown_table(results: list[MethodResult], dataset: str, split: str, n: int,
@@ -195,7 +218,8 @@ def evaluate(data: str | os.PathLike,
              out_dir: str | os.PathLike | None = None, split: str = 'test', workers: int = 0,
              fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
              precision: str = 'auto', progress: bool = True, by_family: bool = False,
-             scores_path: str | os.PathLike | None = None) -> dict[str, Any]:
+             scores_path: str | os.PathLike | None = None, guard: bool = False
+             ) -> dict[str, Any]:
     """Evaluate the CNN (and with ``baselines`` the paper's baselines) on a dataset split.
 
     Args:
@@ -218,6 +242,9 @@ def evaluate(data: str | os.PathLike,
             (:mod:`landing_zone.learn.lofo`; synth3 data): RESULTS.json gains 'families', the table
             the family tables.
         scores_path: write every scene's score by every method here (:func:`scores_json`).
+        guard: judge every CNN as the assessor does, its P(safe) capped where the guard
+            (:mod:`landing_zone.judging.guard`, default configuration) finds opaque structure
+            above the tile's ground plane; the CNNs' rows are named '... + guard'.
 
     Returns:
         The RESULTS.json dictionary, plus 'table' (markdown).
@@ -240,7 +267,7 @@ def evaluate(data: str | os.PathLike,
     train_source = SceneDataset(data, 'train') if baselines else None
     return evaluate_scenes(ds, name, split, model, baselines, train_source, json_path, out_dir,
                            workers, fit_scenes, max_scenes, seed, precision, progress,
-                           by_family=by_family, scores_path=scores_path)
+                           by_family=by_family, scores_path=scores_path, guard=guard)
 
 
 def evaluate_scenes(source: Any, dataset: str, split: str,
@@ -251,7 +278,8 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
                     fit_scenes: int = 2000, max_scenes: int = 0, seed: int = 0,
                     precision: str = 'auto', progress: bool = False,
                     extra_methods: list[Any] | None = None, by_family: bool = False,
-                    scores_path: str | os.PathLike | None = None) -> dict[str, Any]:
+                    scores_path: str | os.PathLike | None = None, guard: bool = False
+                    ) -> dict[str, Any]:
     """:func:`evaluate` on any sequence of scenes (``len``, ``[i] -> Scene``).
 
     Args:
@@ -315,8 +343,10 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         train_x, train_y = ti.numpy(), tl.numpy().astype(np.int64)
 
     results = []
+    found_for: dict[tuple, Any] = {}
     for cnn, key in cnns:
-        results += evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
+        res = evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
+        results += _guarded(res, pack, key, y, found_for, progress) if guard else res
     results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
     cnn = cnns[0][0] if cnns else None
     n, n_unsafe = len(y), int((y == 0).sum())
