@@ -32,6 +32,8 @@
 # lofo_AXIS_FAMILY): the yardstick of issue 15 for a recipe FOLDS=0 cannot train (TUNE_DATA).
 # ONLY="AXIS:FAMILY..." (with FOLDS=each) trains and judges those families alone (a session's
 # share of the 19, say); the others' finished models are left as they are.
+# EVAL_ARGS: more options of the final `landing-zone evaluate` ("--guard": every model judged
+# with the guard, as the assessor judges).
 # FOLDS=0 (the default) trains one model per family side by side (`landing-zone train-fleet
 # --lofo`): FLEET_WORKERS at once (default one per core), as processes here or, with ENGINE=ray,
 # as Ray tasks (ADDRESS names a cluster; then WORKDIR and the data must be paths every worker
@@ -189,5 +191,7 @@ else
     done
 fi
 models=(--model "$work/final.safetensors" "${lofo_models[@]}")
+read -ra eval_args <<< "${EVAL_ARGS:-}"
 "$lz" evaluate --data "$test_data" --by-family "${models[@]}" --workers "$workers" \
-    --json "$work/lofo.json" --scores "$work/lofo_scores.json" | tee "$work/lofo.md"
+    --json "$work/lofo.json" --scores "$work/lofo_scores.json" "${eval_args[@]}" \
+    | tee "$work/lofo.md"
