@@ -281,8 +281,8 @@ def test_evaluate_with_the_guard_judges_as_the_assessor_does(tmp_path):
         res = evaluate_scenes(scenes, 'toy', 'test', lenient, scores_path=out, guard=guard)
         (name, scores), = json.loads(out.read_text())['methods'].items()
         runs[guard] = name, np.asarray(scores), res
-    (net, plain, _), (name, capped, res) = runs[False], runs[True]
-    assert name == f'{net} + guard' and f'| {name} |' in res['table']
+    (plain_name, plain, _), (name, capped, res) = runs[False], runs[True]
+    assert name == f'{plain_name} + guard' and f'| {name} |' in res['table']
     assert res['methods'][name]['ece'] is not None
     assert np.all(capped[unsafe] <= GuardConfig().max_p_safe + 1e-6)
     assert np.allclose(capped[~unsafe], plain[~unsafe])

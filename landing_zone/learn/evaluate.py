@@ -148,19 +148,14 @@ def measure(name: str, scores: np.ndarray, labels: np.ndarray, ms_per_volume: fl
                         fpr, tpr, rel)
 
 
-def _guarded(results: list[MethodResult], pack: Any, key: tuple, y: np.ndarray,
-             found_for: dict[tuple, Any], progress: bool) -> list[MethodResult]:
-    """The CNN results with the assessor's guard applied to their P(safe), as on the robot
-    (:mod:`landing_zone.learn.scene_guard`): named '... + guard'. ``found_for`` caches the
-    guard's findings per voxelization."""
+def _guarded(results: list[MethodResult], found: Any, y: np.ndarray) -> list[MethodResult]:
+    """The CNN results with the assessor's guard (its findings ``found`` on the same scenes)
+    applied to their P(safe), as on the robot: named '... + guard'. ms / volume stays the
+    network's (what the guard costs on the robot: ``landing-zone bench assess``)."""
     from landing_zone.config import GuardConfig
     from landing_zone.judging.guard import guard_p_safe
-    from landing_zone.learn.scene_guard import guard_scenes
 
     cfg = GuardConfig()
-    if key not in found_for:
-        found_for[key] = guard_scenes(pack, *_configs(key), cfg, progress=progress)
-    found = found_for[key]
     return [measure(f'{r.name} + guard', guard_p_safe(r.scores, found, cfg).astype(np.float64),
                     y, r.ms_per_volume, True) for r in results]
 
@@ -330,6 +325,15 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
             volumes[key] = voxelize(pack, m, t, workers, progress, f'voxelizing {split}')
         return volumes[key]
 
+    guards: dict[tuple, Any] = {}
+
+    def guard_for(key: tuple) -> Any:  # the guard's findings, once per voxelization
+        if key not in guards:
+            from landing_zone.config import GuardConfig
+            from landing_zone.learn.scene_guard import guard_scenes
+            guards[key] = guard_scenes(pack, *_configs(key), GuardConfig(), progress=progress)
+        return guards[key]
+
     inputs, labels = volumes_for(key0)
     x = inputs.numpy()
     y = labels.numpy().astype(np.int64)
@@ -343,10 +347,9 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         train_x, train_y = ti.numpy(), tl.numpy().astype(np.int64)
 
     results = []
-    found_for: dict[tuple, Any] = {}
     for cnn, key in cnns:
         res = evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
-        results += _guarded(res, pack, key, y, found_for, progress) if guard else res
+        results += _guarded(res, guard_for(key), y) if guard else res
     results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
     cnn = cnns[0][0] if cnns else None
     n, n_unsafe = len(y), int((y == 0).sum())
