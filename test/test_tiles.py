@@ -324,17 +324,33 @@ def test_scene_to_input_finds_the_ground_whatever_the_augmentation(rng):
                                                                z_shift=0.23).inputs)
 
 
-def test_scene_to_input_matches_a_deployed_map(rng):
-    """The same returns, placed on tile (0, 0) of a full-size map, give the same input."""
+@pytest.mark.parametrize('slope_deg', [0.0, 10.0])
+@pytest.mark.parametrize('align', [True, False])
+def test_scene_to_input_matches_a_deployed_map(rng, slope_deg, align):
+    """The same returns, placed on tile (0, 0) of a full-size map, give the input the assessor
+    cuts there: its ground planes fitted first, the cube aligned to the tile's plane with
+    ``tiles.align_to_ground`` (the default), cut level without."""
+    from landing_zone.judging.ground import fit_ground
     from landing_zone.mapping.density_map import DensityMap
     pts, origin = flat_returns(rng, n=20000, half=1.5)
-    b = scene_to_input(pts, origin)
+    pts[:, 2] += math.tan(math.radians(slope_deg)) * pts[:, 0]
+    cfg = TileConfig(align_to_ground=align)
+    b = scene_to_input(pts, origin, tile_cfg=cfg)
     dmap = DensityMap(MapConfig(size_xy=6.0), center=(0.5, 0.5, 0.0))
     shift = np.array([0.5, 0.5, 0.0])
     dmap.integrate(pts + shift, origin + shift)
-    deployed = extract_tiles(dmap, tiles=np.array([[0, 0]]))
+    h, p = dmap.counts()
+    tile = np.array([[0, 0]])
+    ground = fit_ground(h, p, dmap.lo, dmap.voxel_size, tile, dmap.tile_vox)
+    deployed = tiles_from_counts(h, p, dmap.lo, dmap.voxel_size, cfg, tile, ground)
     np.testing.assert_array_equal(b.inputs, deployed.inputs)
     assert b.ground_z[0] == deployed.ground_z[0]
+    # aligned, the sloped ground lies in the cube's middle layer; cut level, it crosses layers
+    x = b.inputs[0, 0, PAD:PAD + TV, PAD:PAD + TV]
+    occ = x > 0.2
+    rows = np.argmax(occ, axis=-1)[occ.any(axis=-1)]
+    spread = int(rows.max() - rows.min())
+    assert spread <= 2 if align or slope_deg == 0.0 else spread >= 3
 
 
 def test_scene_to_input_rejects_bad_clouds():

@@ -2,8 +2,10 @@
 
 :func:`scene_to_input` integrates one patch (returns and their sensor origins, tile centred at
 the origin, ground near z = 0) into a small density map of 3 x 3 tiles, so the padding sees real
-neighbours, and cuts the centre tile with :func:`~landing_zone.judging.tiles.tiles_from_counts`:
-the same kernels as onboard, so the network is trained on what it will see. :func:`patch_counts`
+neighbours, fits the tile's ground plane and cuts the centre tile with
+:func:`~landing_zone.judging.tiles.tiles_from_counts`, aligned to that plane where
+``tiles.align_to_ground`` says so (the default): the same kernels and steps as the assessor's, so
+the network is trained and judged on what it sees onboard. :func:`patch_counts`
 gives the counts it cuts from (for what else reads a patch, the guard); a
 :class:`PatchVoxelizer` keeps the small maps between patches.
 """
@@ -16,6 +18,7 @@ import numpy as np
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError
+from landing_zone.judging.ground import fit_ground
 from landing_zone.judging.tiles import TileBatch, tile_voxels, tiles_from_counts
 
 if TYPE_CHECKING:
@@ -70,7 +73,9 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
     origins are rotated by ``yaw`` about the z axis through the tile centre, raised by
     ``z_shift``, moved by half a tile in x and y onto global tile (0, 0), integrated into a
     small density map of 3 x 3 tiles (so the padding sees real neighbours), and tile (0, 0) is
-    extracted with :func:`tiles_from_counts`.
+    extracted with :func:`tiles_from_counts`, its cube aligned to the tile's ground plane
+    (:func:`~landing_zone.judging.ground.fit_ground`) with ``tile_cfg.align_to_ground``, as
+    the assessor cuts it.
 
     Args:
         points: (N, 3) returns in the patch frame [m].
@@ -93,7 +98,12 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
     h, p, lo = patch_counts(points, origins, mcfg, tcfg, yaw, z_shift, voxelizer)
-    batch = tiles_from_counts(h, p, lo, float(mcfg.voxel_size), tcfg, np.zeros((1, 2), np.int64))
+    vs = float(mcfg.voxel_size)
+    tile = np.zeros((1, 2), np.int64)
+    # the cube aligned to the tile's ground plane where the assessor aligns it
+    ground = (fit_ground(h, p, lo, vs, tile, tile_voxels(vs, tcfg), tcfg.occupied_density)
+              if tcfg.align_to_ground else None)
+    batch = tiles_from_counts(h, p, lo, vs, tcfg, tile, ground)
     batch.centers = np.zeros((1, 2))
     batch.ground_z = batch.ground_z - z_shift
     return batch
