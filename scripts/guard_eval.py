@@ -41,6 +41,7 @@ import math
 import sys
 import time
 import zlib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -187,9 +188,10 @@ def place_shapes(points: np.ndarray, count: int, taken: list[np.ndarray],
 # --- one flight --------------------------------------------------------------------------------
 
 def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
-               model: Path | None = None) -> dict[str, Any]:
+               model: Path | None = None, align: bool = True) -> dict[str, Any]:
     """Simulate, insert, replay one flight of a condition (cached in ``work``) with ``model``
-    (None: the shipped one, and its OOD reference beside it); with ``keep_map`` the final
+    (None: the shipped one, and its OOD reference beside it), its cubes aligned to the ground
+    planes or, ``align`` False, cut level; with ``keep_map`` the final
     density map goes to ``NAME_SEED.npz`` beside its labels (for ``scripts/ood_eval.py``)."""
     from landing_zone.sim.insert import insert_obstacles
     from landing_zone.sim.recorded import read_flight
@@ -221,7 +223,11 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
         bag, labels = inserted, inserted.with_suffix('.labels.json')
     from landing_zone.config import GuardConfig
 
-    res = replay(bag, center=(0.0, 0.0), progress=False, model=model)
+    from landing_zone.config import AssessorConfig
+
+    config = AssessorConfig()
+    config.tiles = replace(config.tiles, align_to_ground=align)
+    res = replay(bag, center=(0.0, 0.0), progress=False, model=model, config=config)
     a = res.assessment
     cap = GuardConfig().max_p_safe
     ood = a.ood if a.ood is not None else np.full(len(a), np.nan)
@@ -408,6 +414,9 @@ def main() -> int:
                     help='model file (default: the shipped one); its NAME.ood.safetensors '
                          'beside it is its OOD reference. Use a WORKDIR per model: results '
                          'there are reused')
+    ap.add_argument('--level', action='store_true',
+                    help='cut the cubes level (tiles.align_to_ground off; default: aligned to '
+                         'the ground plane, the shipped default). Use a WORKDIR per setting')
     ap.add_argument('--keep-maps', action='store_true',
                     help='also keep each flight\'s final density map (NAME_SEED.npz)')
     args = ap.parse_args()
@@ -421,7 +430,8 @@ def main() -> int:
     for name in names:
         docs = []
         for seed in range(args.first_seed, args.first_seed + args.seeds):
-            docs.append(run_flight(args.workdir, name, seed, args.keep_maps, args.model))
+            docs.append(run_flight(args.workdir, name, seed, args.keep_maps, args.model,
+                                   align=not args.level))
             print(f'{name} seed {seed}: {docs[-1]["seconds"]:.0f} s', file=sys.stderr)
         summary[name] = summarise(docs)
     obstacle = [n for n in names if CONDITIONS[n][3] or CONDITIONS[n][2]]
