@@ -221,9 +221,7 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
         insert_obstacles(bag, inserted, obstacles=shapes, seed=seed, overwrite=True)
         bag.unlink()
         bag, labels = inserted, inserted.with_suffix('.labels.json')
-    from landing_zone.config import GuardConfig
-
-    from landing_zone.config import AssessorConfig
+    from landing_zone.config import AssessorConfig, GuardConfig
 
     config = AssessorConfig()
     config.tiles = replace(config.tiles, align_to_ground=align)
