@@ -204,3 +204,20 @@ def test_names_resolve_and_bad_names_say_what_is_wrong():
     assert parse_families('all') == tuple(FAMILIES)
     with pytest.raises(SimulationError, match='unknown obstacle family'):
         parse_families('log,spaceship')
+
+
+def test_assembly_spans_parts_arrangements_and_heights():
+    """The shape prior (``assembly``) is no one kind of object: over 40 instances it draws
+    every kind of part, single parts and heaps, open and closed ones, and heights across its
+    range."""
+    from landing_zone.sim.assembly import PARTS
+    insts = [instance('assembly', k) for k in range(40)]
+    kinds = set().union(*(i.params['parts'] for i in insts))
+    assert kinds == set(PARTS)
+    assert {i.arrangement for i in insts} == {'single', 'piled'}
+    assert any(i.open for i in insts) and not all(i.open for i in insts)
+    heights = np.array([i.model.size[2] for i in insts])
+    assert heights.min() < 0.2 and heights.max() > 0.45
+    # a heap's parts stay separate closed bodies (no boolean union), so heaps have several
+    piled = [i for i in insts if i.arrangement == 'piled']
+    assert all(len(_bodies(i.model)) >= len(i.params['parts']) for i in piled)

@@ -174,26 +174,6 @@ def _lying(v: np.ndarray) -> np.ndarray:
     return sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
 
 
-def _stack(rng: np.random.Generator, pieces: list[sh.Body], spread: float, overlap: float,
-           yaw: bool = True) -> list[sh.Body]:
-    """Heap settled pieces: each at a random spot within ``spread`` of the centre, resting on
-    the highest of the pieces already under it (sunk into them by ``overlap``)."""
-    placed: list[np.ndarray] = []
-    out = []
-    for v, f in pieces:
-        v = sh.settle(_yawed(v, rng.uniform(0, 2 * math.pi)) if yaw else v)
-        ang, r = rng.uniform(0, 2 * math.pi), spread * math.sqrt(rng.uniform())
-        xy = np.array([r * math.cos(ang), r * math.sin(ang)])
-        # Resting on what lies under its middle third: pieces slot in beside each other
-        # instead of balancing on the highest point around (a heap, not a tower).
-        reach = 0.17 * float(np.max(np.ptp(v[:, :2], axis=0)))
-        z = sh.stack_height(placed, xy, reach)
-        v = v + np.array([xy[0], xy[1], max(z - overlap, 0.0)])
-        placed.append(v)
-        out.append((v, f))
-    return out
-
-
 # --- the generators ----------------------------------------------------------------------------
 
 def _rock(rng: np.random.Generator) -> Shape:
@@ -229,7 +209,7 @@ def _rubble(rng: np.random.Generator) -> Shape:
                             rng.uniform(0.05, 0.075)])
             v, f = sh.box(ext)
         pieces.append((sh.settle(v @ _random_rotation(rng).T), f))
-    bodies = _stack(rng, pieces, rng.uniform(0.12, 0.25), 0.01)
+    bodies = sh.heap(rng, pieces, rng.uniform(0.12, 0.25), 0.01)
     v, f = sh.join(bodies)
     return Shape(sh.settle(v), f, 'lying', 'piled', params={'pieces': len(pieces)})
 
@@ -326,7 +306,7 @@ def _box(rng: np.random.Generator) -> Shape:
         h = rng.uniform(0.1, 0.45) * (scale if n > 1 else 1.0) / (1.6 if n > 1 else 1.0)
         pieces.append(sh.box((length, width, max(h, 0.05))))
         scale *= 0.8
-    bodies = _stack(rng, pieces, 0.05 if n > 1 else 0.0, 0.002)
+    bodies = sh.heap(rng, pieces, 0.05 if n > 1 else 0.0, 0.002)
     v, f = sh.join(bodies)
     pose = _pick(rng, {'upright': 0.8, 'leaning': 0.2}) if n == 1 else 'upright'
     if pose == 'leaning':  # tipped onto an edge
@@ -572,7 +552,7 @@ def _sack(rng: np.random.Generator) -> Shape:
 
     arrangement = _pick(rng, {'single': 0.7, 'piled': 0.3})
     pieces = [one() for _ in range(1 if arrangement == 'single' else int(rng.integers(2, 4)))]
-    v, f = sh.join(_stack(rng, pieces, 0.1 if len(pieces) > 1 else 0.0, 0.03))
+    v, f = sh.join(sh.heap(rng, pieces, 0.1 if len(pieces) > 1 else 0.0, 0.03))
     return Shape(sh.settle(v), f, 'lying', arrangement, False, {'sacks': len(pieces)})
 
 
@@ -691,6 +671,11 @@ def _mesh(rng: np.random.Generator) -> Shape:
     return Shape(sh.settle(v), f, pose, 'single', True, {'form': 'cage', 'wire': wire})
 
 
+def _assembly(rng: np.random.Generator) -> Shape:
+    from landing_zone.sim.assembly import build  # it builds Shapes: imported when first used
+    return build(rng)
+
+
 def _t(origin: str, fill: str, form: str, poses: tuple[str, ...], arrangement: tuple[str, ...],
        surface: str) -> Traits:
     return Traits(origin, fill, form, poses, arrangement, surface)
@@ -749,6 +734,11 @@ _FAMILY_LIST = (
                           'smooth'),
            (0.20, 0.60), (0.0, 0.05), 'train', _mesh, (),
            'welded wire mesh: fence panels and wire cages'),
+    # A shape prior, not a kind of object: random assemblies of solid, hollow and gappy parts
+    Family('assembly', 20, _t('man-made', 'gappy', 'compact', ('upright', 'lying', 'leaning'),
+                              _P, 'irregular'),
+           (0.10, 0.60), (0.0, 0.1), 'train', _assembly, (),
+           'random assemblies of blocks, lumps, plates, rods, tubes, rings and shells'),
 )
 FAMILIES: dict[str, Family] = {f.name: f for f in _FAMILY_LIST}
 TEST_FAMILIES = tuple(f.name for f in _FAMILY_LIST if f.split == 'test')

@@ -16,7 +16,7 @@ from typing import Iterable
 import numpy as np
 
 __all__ = ['Body', 'join', 'rotation', 'box', 'rod', 'polyline_rods', 'tube', 'noisy_hull',
-           'flatten_bed', 'revolved', 'settle', 'fit', 'tilt', 'stack_height', 'Z_UP']
+           'flatten_bed', 'revolved', 'settle', 'fit', 'tilt', 'stack_height', 'heap', 'Z_UP']
 
 Body = tuple[np.ndarray, np.ndarray]  # (V, 3) float64 vertices, (F, 3) int64 faces
 Z_UP = np.array([0.0, 0.0, 1.0])
@@ -208,3 +208,23 @@ def stack_height(placed: list[np.ndarray], xy: np.ndarray, reach: float) -> floa
         if near.any():
             top = max(top, float(v[near, 2].max()))
     return top
+
+
+def heap(rng: np.random.Generator, pieces: list[Body], spread: float, overlap: float,
+         yaw: bool = True) -> list[Body]:
+    """Heap settled pieces: each at a random spot within ``spread`` of the centre, resting on
+    the highest of the pieces already under it (sunk into them by ``overlap``)."""
+    placed: list[np.ndarray] = []
+    out = []
+    for v, f in pieces:
+        v = settle(v @ rotation(Z_UP, rng.uniform(0, 2 * math.pi)).T if yaw else v)
+        ang, r = rng.uniform(0, 2 * math.pi), spread * math.sqrt(rng.uniform())
+        xy = np.array([r * math.cos(ang), r * math.sin(ang)])
+        # Resting on what lies under its middle third: pieces slot in beside each other
+        # instead of balancing on the highest point around (a heap, not a tower).
+        reach = 0.17 * float(np.max(np.ptp(v[:, :2], axis=0)))
+        z = stack_height(placed, xy, reach)
+        v = v + np.array([xy[0], xy[1], max(z - overlap, 0.0)])
+        placed.append(v)
+        out.append((v, f))
+    return out
