@@ -3,7 +3,10 @@
 The map is the integrate benchmark's scene (rolling ground with grass, sensor 8 m up and 10 m
 back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1 m. Measured:
 
-- extraction of all 400 tiles (:func:`extract_tiles`: the map's counts, ground, inputs);
+- extraction of all 400 tiles (:func:`extract_tiles`: the map's counts, ground, inputs, cut
+  level), and the assessor's own cut, which the full-map and strip figures count: the counts
+  read once, the cubes aligned to the tiles' ground planes (``tiles.align_to_ground``) and
+  pooled for the net, only the valid tiles' built;
 - the guard beside the network (:func:`~landing_zone.judging.guard.solid_structure`) on the same
   counts, as the assessor runs it; the full-map and strip figures include it;
 - the ground planes (:func:`~landing_zone.judging.ground.fit_ground`: slope, roughness,
@@ -51,7 +54,8 @@ from landing_zone.judging.inference import Predictor, bf16_supported
 from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.ood import FeatureReference, unit_rows
 from landing_zone.judging.patches import PatchVoxelizer
-from landing_zone.judging.tiles import CountBuffers, extract_tiles, tile_voxels, widen_tiles
+from landing_zone.judging.tiles import (CountBuffers, extract_tiles, tile_voxels,
+                                        tiles_from_counts, widen_tiles)
 
 from landing_zone.bench.integrate import SENSOR, make_batches
 
@@ -202,23 +206,23 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     tv = tile_voxels(dmap.voxel_size, tcfg)
     gcfg = GuardConfig()
 
-    def counts(b):
+    def counts(index):
         # the assessor hands the guard and the ground fit the counts it read for the tiler;
         # read them here too
-        lo = np.concatenate([b.index.min(axis=0) * tv - tcfg.padding, dmap.lo[2:]])
-        hi = np.concatenate([(b.index.max(axis=0) + 1) * tv + tcfg.padding, dmap.hi[2:]])
+        lo = np.concatenate([index.min(axis=0) * tv - tcfg.padding, dmap.lo[2:]])
+        hi = np.concatenate([(index.max(axis=0) + 1) * tv + tcfg.padding, dmap.hi[2:]])
         lo = np.clip(lo, dmap.lo, dmap.hi)
         hi = np.clip(hi, lo, dmap.hi)
         h, p = dmap.counts(lo, hi - lo)
         return h, p, lo
 
-    def ground(b, read=None):
+    def ground(index, read=None):
         # the assessor fits on the counts it read for the tiler: ``read`` given, no read here
-        h, p, lo = counts(b) if read is None else read
-        return fit_ground(h, p, lo, dmap.voxel_size, b.index, tv, tcfg.occupied_density)
+        h, p, lo = counts(index) if read is None else read
+        return fit_ground(h, p, lo, dmap.voxel_size, index, tv, tcfg.occupied_density)
 
     def guard(b, g=None) -> None:
-        h, p, lo = counts(b)
+        h, p, lo = counts(b.index)
         gz = b.ground_z if g is None else np.where(np.isfinite(g.plane_z), g.plane_z,
                                                    b.ground_z)
         solid_structure(h, p, lo, dmap.voxel_size, b.index, np.where(b.valid, gz, np.nan),
@@ -236,9 +240,26 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         cand = evaluate_candidates(p, p, origin, scfg, tcfg.tile_size, grid)
         find_sites(p, p, origin, scfg, tcfg.tile_size, ground=grid, candidates=cand)
 
-    grd = ground(batch)
-    read = counts(batch)
-    ground_med, ground_best = _times(lambda: ground(batch, read), repeats)
+    grd = ground(batch.index)
+    read = counts(batch.index)
+    ground_med, ground_best = _times(lambda: ground(batch.index, read), repeats)
+
+    def cut(index, read, g, pool):
+        # the assessor's cut: on the counts it read, the cubes aligned to the tiles' ground
+        # planes (tiles.align_to_ground), only the valid tiles' built, pooled for the net
+        return tiles_from_counts(*read, dmap.voxel_size, tcfg, index,
+                                 g if tcfg.align_to_ground else None, invalid_inputs=False,
+                                 pool=pool)
+
+    # what the assessor cuts for the shipped net (its inputs below): counts read, then the cut
+    cut_med, cut_best = _times(lambda: cut(batch.index, counts(batch.index), grd, 2), repeats)
+    cut1_med, _ = _times(lambda: cut(batch.index, counts(batch.index), grd, 1), repeats)
+    pooled = cut(batch.index, read, grd, 2).inputs
+    results.update(extract_assessor_s=cut_med, extract_assessor_unpooled_s=cut1_med)
+    aligned = 'aligned to the ground planes, ' if tcfg.align_to_ground else ''
+    print(f'the assessor\'s cut ({aligned}valid tiles only, counts read included): pooled '
+          f'{cut_med * 1e3:.1f} ms '
+          f'({cut_best * 1e3:.1f}), unpooled {cut1_med * 1e3:.1f} ms')
     guard_med, guard_best = _times(lambda: guard(batch, grd), repeats)
     sites_med, sites_best = _times(lambda: sites(grd), repeats)
     results.update(ground_s=ground_med, guard_s=guard_med, sites_s=sites_med)
@@ -274,7 +295,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
             judged += ' + OOD'
             results['ood'] = {'reference': ref_label, 'rows': int(len(ref.features)),
                               'distance_s': dist_s, 'network_with_ood_s': net_s}
-        full = (extp_med if pool else ext_med) + ground_med + guard_med + sites_med + net_s
+        full = (cut_med if pool else cut1_med) + ground_med + guard_med + sites_med + net_s
         results[spec] = {
             'label': label, 'mmac_per_tile': net.flops() / 1e6,
             'network_s': {name: med for name, med, _ in rows},
@@ -316,8 +337,9 @@ def run(batches: int = 30, seed: int = 0) -> dict:
 
         def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl,
                    ref: FeatureReference | None = ref, pool: bool = pool) -> None:
-            sub = extract_tiles(dmap, tcfg, wide, buffers=buffers, pool=2 if pool else 1)
-            g = ground(sub)
+            sub_read = counts(wide)
+            g = ground(wide, sub_read)
+            sub = cut(wide, sub_read, g, 2 if pool else 1)
             guard(sub, g)
             if ref is None:
                 predictor(sub.inputs, 256, prec, channels_last=cl, pooled=pool)
