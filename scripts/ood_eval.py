@@ -107,20 +107,27 @@ def flight_tiles(path: Path, model: Any, guard: bool) -> dict[str, np.ndarray]:
     """Features, statistics, labels and P(safe) of the judged, labelled tiles of one map
     (with ``guard``, P(safe) capped where the shipped guard fires)."""
     from landing_zone.config import GuardConfig, TileConfig
+    from landing_zone.judging.ground import fit_ground
     from landing_zone.judging.guard import guard_p_safe, solid_structure
     from landing_zone.judging.tiles import tiles_from_counts
 
     d = np.load(path)
     labels = json.loads(Path(str(path)[:-4] + '.labels.json').read_text())
     truth = {(round(t['x'], 3), round(t['y'], 3)): bool(t['safe']) for t in labels['tiles']}
-    b = tiles_from_counts(d['hits'], d['passes'], d['lo'], 0.05, TileConfig(), d['index'])
+    # as the assessor cuts them: the ground planes first, the cubes aligned to them
+    # (tiles.align_to_ground) and the guard above them
+    tcfg = TileConfig()
+    ground = fit_ground(d['hits'], d['passes'], d['lo'], 0.05, d['index'], 20,
+                        tcfg.occupied_density)
+    b = tiles_from_counts(d['hits'], d['passes'], d['lo'], 0.05, tcfg, d['index'], ground)
     keys = [(round(x, 3), round(y, 3)) for x, y in b.centers.tolist()]
     keep = b.valid & np.array([k in truth for k in keys])
     x = b.inputs[keep]
     f, p = penultimate(model, x)
     if guard:
-        g = solid_structure(d['hits'], d['passes'], d['lo'], 0.05, b.index[keep],
-                            b.ground_z[keep], 20, GuardConfig())
+        gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, b.ground_z)
+        g = solid_structure(d['hits'], d['passes'], d['lo'], 0.05, b.index[keep], gz[keep], 20,
+                            GuardConfig(), grad=ground.grad[keep])
         p = guard_p_safe(p, g, GuardConfig())
     return {'flight': np.full(len(p), path.stem), 'features': f,
             'stats': input_stats(x, b.n_returns[keep], b.observed_fraction[keep]),
