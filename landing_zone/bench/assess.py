@@ -194,7 +194,6 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     # what the assessor cuts for a net that opens with a 2^3 pool (the shipped one)
     extp_med, extp_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers, pool=2),
                                  repeats)
-    pooled = extract_tiles(dmap, tcfg, buffers=buffers, pool=2).inputs
     n = len(batch)
     results.update(tiles=n, valid_tiles=int(batch.valid.sum()), extract_s=ext_med,
                    extract_pooled_s=extp_med, extract_counts_s=cnt_med)
