@@ -32,25 +32,17 @@ PARTS = {'block': 1.0, 'cylinder': 1.0, 'lump': 1.2, 'plate': 0.9, 'rod': 0.7, '
 _OPEN = {'tube', 'ring', 'shell', 'sticks'}
 
 
-def _choice(rng: np.random.Generator, weights: dict[str, float]) -> str:
-    keys = list(weights)
-    p = np.array([weights[k] for k in keys], dtype=float)
-    return keys[int(rng.choice(len(keys), p=p / p.sum()))]
-
-
 def _turned(rng: np.random.Generator, v: np.ndarray) -> np.ndarray:
     """``v`` turned at random: a yaw always, a full random rotation half the time."""
     if rng.uniform() < 0.5:
-        from scipy.spatial.transform import Rotation
-        q = rng.standard_normal(4)
-        v = v @ Rotation.from_quat(q / np.linalg.norm(q)).as_matrix().T
+        v = v @ sh.random_rotation(rng).T
     return sh.settle(v @ sh.rotation(sh.Z_UP, rng.uniform(0.0, 2 * math.pi)).T)
 
 
 def _part(rng: np.random.Generator) -> tuple[list[sh.Body], str]:
     """One part at its own size, settled on z = 0, and its kind."""
     import trimesh
-    kind = _choice(rng, PARTS)
+    kind = sh.pick(rng, PARTS)
     if kind == 'block':
         bodies = [sh.box(rng.uniform(0.04, 0.5, 3))]
     elif kind == 'cylinder':
@@ -117,9 +109,9 @@ def build(rng: np.random.Generator):  # type: ignore[no-untyped-def]
         spread = rng.uniform(0.05, 0.3)
         bodies = sh.heap(rng, [sh.join(p) for p in parts], spread, 0.01)
     v, f = sh.join(bodies)
-    pose = _choice(rng, {'upright': 0.45, 'lying': 0.3, 'leaning': 0.25})
+    pose = sh.pick(rng, {'upright': 0.45, 'lying': 0.3, 'leaning': 0.25})
     if pose == 'lying':
-        v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
+        v = sh.lying(v)
     elif pose == 'leaning':
         v = sh.tilt(v, math.radians(rng.uniform(15, 60)), rng.uniform(0, 2 * math.pi))
     # Heights spread over the family's range: a heap of parts stands tall, so the assembly is

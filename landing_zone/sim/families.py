@@ -153,25 +153,8 @@ class Instance:
 
 # --- helpers -----------------------------------------------------------------------------------
 
-def _pick(rng: np.random.Generator, weights: dict[str, float]) -> str:
-    keys = list(weights)
-    p = np.array([weights[k] for k in keys], dtype=float)
-    return keys[int(rng.choice(len(keys), p=p / p.sum()))]
-
-
-def _random_rotation(rng: np.random.Generator) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-    q = rng.standard_normal(4)
-    return Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
-
-
 def _yawed(v: np.ndarray, yaw: float) -> np.ndarray:
     return v @ sh.rotation(sh.Z_UP, yaw).T
-
-
-def _lying(v: np.ndarray) -> np.ndarray:
-    """Turn a z-axis shape onto its side (axis along y)."""
-    return sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
 
 
 # --- the generators ----------------------------------------------------------------------------
@@ -192,7 +175,7 @@ def _slab(rng: np.random.Generator) -> Shape:
     v, f = sh.noisy_hull(rng, (0.5 * length, 0.5 * width, 0.5 * thick), points=(30, 60),
                          jitter=(0.85, 1.1), dent=0.06)
     v = sh.settle(sh.flatten_bed(v, 0.3))
-    pose = _pick(rng, {'lying': 0.65, 'leaning': 0.35})
+    pose = sh.pick(rng, {'lying': 0.65, 'leaning': 0.35})
     if pose == 'leaning':
         v = sh.tilt(v, math.radians(rng.uniform(25.0, 70.0)), rng.uniform(0, 2 * math.pi))
     return Shape(v, f, pose, params={'thickness': thick, 'length': length})
@@ -208,7 +191,7 @@ def _rubble(rng: np.random.Generator) -> Shape:
             ext = np.array([rng.uniform(0.12, 0.23), rng.uniform(0.06, 0.11),
                             rng.uniform(0.05, 0.075)])
             v, f = sh.box(ext)
-        pieces.append((sh.settle(v @ _random_rotation(rng).T), f))
+        pieces.append((sh.settle(v @ sh.random_rotation(rng).T), f))
     bodies = sh.heap(rng, pieces, rng.uniform(0.12, 0.25), 0.01)
     v, f = sh.join(bodies)
     return Shape(sh.settle(v), f, 'lying', 'piled', params={'pieces': len(pieces)})
@@ -233,7 +216,7 @@ def _log(rng: np.random.Generator) -> Shape:
                              rng.uniform(0.2, 0.4) * r, 8))
     v, f = sh.join(bodies)
     v = sh.settle(v)
-    pose = _pick(rng, {'lying': 0.7, 'leaning': 0.3})
+    pose = sh.pick(rng, {'lying': 0.7, 'leaning': 0.3})
     if pose == 'leaning':  # one end on the ground, the other propped up
         v = sh.settle(v @ sh.rotation((0.0, 1.0, 0.0), -math.radians(rng.uniform(15, 40))).T)
     return Shape(v, f, pose, params={'radius': r, 'length': length})
@@ -296,7 +279,7 @@ def _brush(rng: np.random.Generator) -> Shape:
 
 
 def _box(rng: np.random.Generator) -> Shape:
-    arrangement = _pick(rng, {'single': 0.7, 'piled': 0.3})
+    arrangement = sh.pick(rng, {'single': 0.7, 'piled': 0.3})
     n = 1 if arrangement == 'single' else int(rng.integers(2, 4))
     pieces = []
     scale = 1.0
@@ -308,7 +291,7 @@ def _box(rng: np.random.Generator) -> Shape:
         scale *= 0.8
     bodies = sh.heap(rng, pieces, 0.05 if n > 1 else 0.0, 0.002)
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.8, 'leaning': 0.2}) if n == 1 else 'upright'
+    pose = sh.pick(rng, {'upright': 0.8, 'leaning': 0.2}) if n == 1 else 'upright'
     if pose == 'leaning':  # tipped onto an edge
         v = sh.tilt(v, math.radians(rng.uniform(10, 35)), rng.uniform(0, 2 * math.pi))
     return Shape(sh.settle(v), f, pose, arrangement, params={'boxes': n})
@@ -342,7 +325,7 @@ def _crate(rng: np.random.Generator) -> Shape:
         for (cx, cy), (ex, ey) in walls:
             bodies.append(sh.box((ex, ey, h), (cx, cy, 0.5 * h)))
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.7, 'on_side': 0.15, 'upside_down': 0.15})
+    pose = sh.pick(rng, {'upright': 0.7, 'on_side': 0.15, 'upside_down': 0.15})
     if pose == 'on_side':
         v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
     elif pose == 'upside_down':
@@ -366,9 +349,9 @@ def _bucket(rng: np.random.Generator) -> Shape:
                         h - 0.02 + rt * np.sin(ang) * math.cos(lean)], axis=1)
         bodies.append(sh.tube(arc, 0.004, 6))
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.5, 'lying': 0.35, 'upside_down': 0.15})
+    pose = sh.pick(rng, {'upright': 0.5, 'lying': 0.35, 'upside_down': 0.15})
     if pose == 'lying':
-        v = _lying(v)
+        v = sh.lying(v)
     elif pose == 'upside_down':
         v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi).T)
     return Shape(sh.settle(v), f, 'lying' if pose == 'lying' else 'upright', 'single',
@@ -379,11 +362,11 @@ def _pipe(rng: np.random.Generator) -> Shape:
     import trimesh
     r_out = rng.uniform(0.05, 0.2)
     wall = min(rng.uniform(0.006, 0.025), 0.4 * r_out)
-    pose = _pick(rng, {'lying': 0.75, 'upright': 0.25})
+    pose = sh.pick(rng, {'lying': 0.75, 'upright': 0.25})
     length = rng.uniform(0.3, 0.68) if pose == 'lying' else rng.uniform(0.15, 0.5)
     m = trimesh.creation.annulus(r_min=r_out - wall, r_max=r_out, height=length, sections=32)
     v, f = np.asarray(m.vertices, float).copy(), np.asarray(m.faces, np.int64).copy()
-    v = _lying(v) if pose == 'lying' else sh.settle(v)
+    v = sh.lying(v) if pose == 'lying' else sh.settle(v)
     return Shape(v, f, pose, 'single', True, {'radius': r_out, 'wall': wall, 'length': length})
 
 
@@ -400,7 +383,7 @@ def _tire(rng: np.random.Generator) -> Shape:
     tube = rng.uniform(0.04, 0.09)
     major = rng.uniform(max(0.12, tube + 0.04), 0.34 - tube)
     flatten = rng.uniform(0.8, 1.3)
-    pose = _pick(rng, {'lying': 0.4, 'upright': 0.3, 'leaning': 0.2, 'stacked': 0.1})
+    pose = sh.pick(rng, {'lying': 0.4, 'upright': 0.3, 'leaning': 0.2, 'stacked': 0.1})
     if pose == 'stacked':
         n = int(rng.integers(2, 4))
         bodies = []
@@ -413,7 +396,7 @@ def _tire(rng: np.random.Generator) -> Shape:
         return Shape(sh.settle(v), f, 'lying', 'piled', True, {'tires': n, 'major': major})
     v, f = _torus(major, tube, flatten)
     if pose == 'upright':
-        v = _lying(v)
+        v = sh.lying(v)
     elif pose == 'leaning':
         v = sh.tilt(v, math.radians(rng.uniform(20, 60)), rng.uniform(0, 2 * math.pi))
     return Shape(v, f, pose, 'single', True, {'major': major, 'tube': tube})
@@ -448,7 +431,7 @@ def _post(rng: np.random.Generator) -> Shape:
         r = rng.uniform(0.025, 0.06)
         v, f = sh.rod((0, 0, 0), (0, 0, h), r, 12)
         params = {'radius': r}
-    pose = _pick(rng, {'upright': 0.6, 'leaning': 0.4})
+    pose = sh.pick(rng, {'upright': 0.6, 'leaning': 0.4})
     if pose == 'leaning':
         v = sh.tilt(v, math.radians(rng.uniform(10, 40)), rng.uniform(0, 2 * math.pi))
     return Shape(sh.settle(v), f, pose, params=params)
@@ -472,7 +455,7 @@ def _cone(rng: np.random.Generator) -> Shape:
         bodies.append(sh.box((ex, ey, plate), (sx * (hole + 0.5 * rim), sy * (hole + 0.5 * rim),
                                                0.5 * plate)))
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.65, 'lying': 0.35})
+    pose = sh.pick(rng, {'upright': 0.65, 'lying': 0.35})
     if pose == 'lying':  # knocked over
         v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.radians(rng.uniform(70, 90))).T)
     return Shape(sh.settle(v), f, pose, 'single', pose == 'lying', {'height': h + plate})
@@ -493,8 +476,8 @@ def _coil(rng: np.random.Generator) -> Shape:
         p = np.array([radius * math.cos(ang), radius * math.sin(ang), 0.0])
         bodies.append(sh.rod(p, p + np.array([0.0, 0.0, length]), 0.8 * wire, 6))
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'lying': 0.7, 'upright': 0.3})
-    v = _lying(v) if pose == 'lying' else sh.settle(v)
+    pose = sh.pick(rng, {'lying': 0.7, 'upright': 0.3})
+    v = sh.lying(v) if pose == 'lying' else sh.settle(v)
     return Shape(v, f, pose, 'single', True, {'radius': radius, 'wire': wire, 'turns': turns})
 
 
@@ -518,7 +501,7 @@ def _pallet(rng: np.random.Generator) -> Shape:
                 parts.append(sh.box((board, width, deck), (x, 0.0, 0.5 * deck)))
         return parts, z0 + sh_h + deck
 
-    arrangement = _pick(rng, {'single': 0.7, 'piled': 0.3})
+    arrangement = sh.pick(rng, {'single': 0.7, 'piled': 0.3})
     bodies, z = one()
     if arrangement == 'piled':
         for _ in range(int(rng.integers(1, 3))):
@@ -550,7 +533,7 @@ def _sack(rng: np.random.Generator) -> Shape:
         v *= 1.0 + 0.04 * lumps
         return sh.settle(v), np.asarray(m.faces, np.int64).copy()
 
-    arrangement = _pick(rng, {'single': 0.7, 'piled': 0.3})
+    arrangement = sh.pick(rng, {'single': 0.7, 'piled': 0.3})
     pieces = [one() for _ in range(1 if arrangement == 'single' else int(rng.integers(2, 4)))]
     v, f = sh.join(sh.heap(rng, pieces, 0.1 if len(pieces) > 1 else 0.0, 0.03))
     return Shape(sh.settle(v), f, 'lying', arrangement, False, {'sacks': len(pieces)})
@@ -560,7 +543,7 @@ def _frame(rng: np.random.Generator) -> Shape:
     """Open frames of thin rods: stools, sawhorses, trestles, tripods, a chair's skeleton."""
     r = rng.uniform(0.008, 0.022)
     h = rng.uniform(0.25, 0.6)
-    kind = _pick(rng, {'four_legs': 0.55, 'sawhorse': 0.25, 'tripod': 0.2})
+    kind = sh.pick(rng, {'four_legs': 0.55, 'sawhorse': 0.25, 'tripod': 0.2})
     bodies: list[sh.Body] = []
     if kind == 'tripod':
         top_r = rng.uniform(0.03, 0.1)
@@ -604,9 +587,9 @@ def _frame(rng: np.random.Generator) -> Shape:
             bodies.append(sh.rod((tops[0][0], tops[0][1], h + back),
                                  (tops[1][0], tops[1][1], h + back), r, 8))
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.5, 'lying': 0.3, 'leaning': 0.2})
+    pose = sh.pick(rng, {'upright': 0.5, 'lying': 0.3, 'leaning': 0.2})
     if pose == 'lying':  # knocked over onto its side
-        v = _lying(v)
+        v = sh.lying(v)
     elif pose == 'leaning':  # propped up on two legs
         v = sh.tilt(v, math.radians(rng.uniform(10, 30)), rng.uniform(0, 2 * math.pi))
     return Shape(sh.settle(v), f, pose, 'single', True, {'kind': kind, 'rod': r})
@@ -638,7 +621,7 @@ def _mesh(rng: np.random.Generator) -> Shape:
             bodies += [sh.rod((-0.5 * width, 0, 0), (-0.5 * width, 0, height), fr, 8),
                        sh.rod((0.5 * width, 0, 0), (0.5 * width, 0, height), fr, 8),
                        sh.rod((-0.5 * width, 0, height), (0.5 * width, 0, height), fr, 8)]
-        pose = _pick(rng, {'upright': 0.5, 'leaning': 0.5})
+        pose = sh.pick(rng, {'upright': 0.5, 'leaning': 0.5})
         if pose == 'upright':  # two feet across the panel keep it standing
             foot = rng.uniform(0.12, 0.3)
             for x in (-0.4 * width, 0.4 * width):
@@ -665,7 +648,7 @@ def _mesh(rng: np.random.Generator) -> Shape:
         bodies += [(bv @ flat.T + np.array([0.0, 0.5 * ly, z + wire]), bf)
                    for bv, bf in _grid(lx, ly, pu, pv, wire)]
     v, f = sh.join(bodies)
-    pose = _pick(rng, {'upright': 0.6, 'lying': 0.4})
+    pose = sh.pick(rng, {'upright': 0.6, 'lying': 0.4})
     if pose == 'lying':
         v = sh.settle(v @ sh.rotation((0.0, 1.0, 0.0), math.pi / 2).T)
     return Shape(sh.settle(v), f, pose, 'single', True, {'form': 'cage', 'wire': wire})

@@ -16,7 +16,8 @@ from typing import Iterable
 import numpy as np
 
 __all__ = ['Body', 'join', 'rotation', 'box', 'rod', 'polyline_rods', 'tube', 'noisy_hull',
-           'flatten_bed', 'revolved', 'settle', 'fit', 'tilt', 'stack_height', 'heap', 'Z_UP']
+           'flatten_bed', 'revolved', 'settle', 'fit', 'tilt', 'stack_height', 'heap', 'pick',
+           'random_rotation', 'lying', 'Z_UP']
 
 Body = tuple[np.ndarray, np.ndarray]  # (V, 3) float64 vertices, (F, 3) int64 faces
 Z_UP = np.array([0.0, 0.0, 1.0])
@@ -228,3 +229,22 @@ def heap(rng: np.random.Generator, pieces: list[Body], spread: float, overlap: f
         placed.append(v)
         out.append((v, f))
     return out
+
+
+def pick(rng: np.random.Generator, weights: dict[str, float]) -> str:
+    """A key of ``weights`` drawn in proportion to its weight (a pose, a part, a kind)."""
+    keys = list(weights)
+    p = np.array([weights[k] for k in keys], dtype=float)
+    return keys[int(rng.choice(len(keys), p=p / p.sum()))]
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A 3x3 rotation uniform over all orientations (a normalised Gaussian quaternion)."""
+    from scipy.spatial.transform import Rotation
+    q = rng.standard_normal(4)
+    return Rotation.from_quat(q / np.linalg.norm(q)).as_matrix()
+
+
+def lying(v: np.ndarray) -> np.ndarray:
+    """Turn a z-axis shape onto its side (axis along y), settled."""
+    return settle(v @ rotation((1.0, 0.0, 0.0), math.pi / 2).T)
