@@ -293,7 +293,7 @@ def _save_map(bag: Path, a: Any, out: Path) -> None:
     m.map.integrate(fl.points[rest], fl.ray_origins()[rest])
     hits, passes = m.map.counts()
     np.savez_compressed(out, hits=hits, passes=passes, lo=m.map.lo, index=a.index,
-                        ground_z=a.ground_z, p_safe=a.p_net)
+                        ground_z=a.ground_z, p_safe=a.p_net, voxel_size=m.map.voxel_size)
 
 
 def _num(v: float) -> float | None:

@@ -106,10 +106,10 @@ def training_reference(root: Path, scenes: int, model: Any) -> dict[str, np.ndar
 def flight_tiles(path: Path, model: Any, guard: bool) -> dict[str, np.ndarray]:
     """Features, statistics, labels and P(safe) of the judged, labelled tiles of one map
     (with ``guard``, P(safe) capped where the shipped guard fires)."""
-    from landing_zone.config import GuardConfig, TileConfig
+    from landing_zone.config import GuardConfig, MapConfig, TileConfig
     from landing_zone.judging.ground import fit_ground
     from landing_zone.judging.guard import guard_p_safe, solid_structure
-    from landing_zone.judging.tiles import tiles_from_counts
+    from landing_zone.judging.tiles import tile_voxels, tiles_from_counts
 
     d = np.load(path)
     labels = json.loads(Path(str(path)[:-4] + '.labels.json').read_text())
@@ -117,16 +117,19 @@ def flight_tiles(path: Path, model: Any, guard: bool) -> dict[str, np.ndarray]:
     # as the assessor cuts them: the ground planes first, the cubes aligned to them
     # (tiles.align_to_ground) and the guard above them
     tcfg = TileConfig()
-    ground = fit_ground(d['hits'], d['passes'], d['lo'], 0.05, d['index'], 20,
+    # the map's voxel (saved with it since guard_eval.py stores it; the default map's before)
+    vs = float(d['voxel_size']) if 'voxel_size' in d.files else MapConfig().voxel_size
+    tv = tile_voxels(vs, tcfg)
+    ground = fit_ground(d['hits'], d['passes'], d['lo'], vs, d['index'], tv,
                         tcfg.occupied_density)
-    b = tiles_from_counts(d['hits'], d['passes'], d['lo'], 0.05, tcfg, d['index'], ground)
+    b = tiles_from_counts(d['hits'], d['passes'], d['lo'], vs, tcfg, d['index'], ground)
     keys = [(round(x, 3), round(y, 3)) for x, y in b.centers.tolist()]
     keep = b.valid & np.array([k in truth for k in keys])
     x = b.inputs[keep]
     f, p = penultimate(model, x)
     if guard:
         gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, b.ground_z)
-        g = solid_structure(d['hits'], d['passes'], d['lo'], 0.05, b.index[keep], gz[keep], 20,
+        g = solid_structure(d['hits'], d['passes'], d['lo'], vs, b.index[keep], gz[keep], tv,
                             GuardConfig(), grad=ground.grad[keep])
         p = guard_p_safe(p, g, GuardConfig())
     return {'flight': np.full(len(p), path.stem), 'features': f,

@@ -74,7 +74,16 @@ def main() -> None:
     fams = scene_families(ds)
     pack = ScenePack.from_scenes(ds)
     mcfg, tcfg = input_configs(meta)
-    x, y = voxelize(pack, mcfg, tcfg, args.workers)
+    found = None
+    if args.guard:  # the guard's findings from the same read of each patch
+        from landing_zone.config import GuardConfig
+        from landing_zone.learn.scene_guard import voxelize_guarded
+        t0 = time.perf_counter()
+        x, y, found = voxelize_guarded(pack, mcfg, tcfg, GuardConfig(), args.workers)
+        print(f'voxelized and guarded {len(pack)} scenes in {time.perf_counter() - t0:.1f} s',
+              file=sys.stderr)
+    else:
+        x, y = voxelize(pack, mcfg, tcfg, args.workers)
     with Predictor(net) as predict:
         p, feats = predict.with_features(x)
     ratio = ref.ratio(feats)
@@ -83,13 +92,9 @@ def main() -> None:
     none = np.zeros_like(unknown)
     conditions = {'without': (p, none), 'with': (p, unknown)}
     fired = None
-    if args.guard:
+    if found is not None:
         from landing_zone.config import GuardConfig
         from landing_zone.judging.guard import guard_p_safe
-        from landing_zone.learn.scene_guard import guard_scenes
-        t0 = time.perf_counter()
-        found = guard_scenes(pack, mcfg, tcfg, GuardConfig(), progress=True)
-        print(f'guard: {len(pack)} scenes in {time.perf_counter() - t0:.1f} s', file=sys.stderr)
         fired = found.fired
         pg = guard_p_safe(p, found, GuardConfig()).astype(np.float64)
         conditions['guard'] = (pg, none)

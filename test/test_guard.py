@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from landing_zone.config import AssessorConfig, GuardConfig, MapConfig
 from landing_zone.errors import ConfigError
@@ -238,25 +239,35 @@ def test_the_guard_leaves_unknown_tiles_unknown_and_repeats_itself(grass_flight)
 
 
 def test_the_guard_on_simulated_patches_fires_on_boxes_not_on_open_ground():
-    """guard_scenes reads the counts the evaluation cube is cut from (patch_counts gives the
-    same cube as scene_to_input) and fires on the toy boxes only (at 4400 returns/m^2)."""
+    """voxelize_guarded gives the network the cubes voxelize gives it (cut_patch on the counts
+    patch_counts reads is scene_to_input) and the guard's finding from the same counts: it
+    fires on the toy boxes only (at 4400 returns/m^2), in a loader worker as in this process."""
     from landing_zone.config import TileConfig
-    from landing_zone.judging.patches import patch_counts, scene_to_input
-    from landing_zone.judging.tiles import tiles_from_counts
-    from landing_zone.learn.scene_guard import guard_scenes
+    from landing_zone.judging.patches import (cut_patch, patch_counts, patch_ground,
+                                              scene_to_input)
+    from landing_zone.learn.samples import voxelize
+    from landing_zone.learn.scene_guard import voxelize_guarded
     from landing_zone.learn.scenes import ScenePack
     from test_train import toy_scene
     rng = np.random.default_rng(3)
     scenes = [toy_scene(rng, i % 2 == 0, n=40000) for i in range(6)]
     mcfg, tcfg = MapConfig(), TileConfig()
-    h, p, lo = patch_counts(scenes[0].points, scenes[0].origins, mcfg, tcfg)
-    cube = tiles_from_counts(h, p, lo, VS, tcfg, np.zeros((1, 2), np.int64)).inputs
+    counts = patch_counts(scenes[0].points, scenes[0].origins, mcfg, tcfg)
+    cube = cut_patch(counts, mcfg, tcfg, patch_ground(counts, mcfg, tcfg)).inputs
     assert np.array_equal(cube, scene_to_input(scenes[0].points, scenes[0].origins, mcfg,
                                                tcfg).inputs)
-    found = guard_scenes(ScenePack.from_scenes(scenes), mcfg, tcfg, GuardConfig())
+    pack = ScenePack.from_scenes(scenes)
+    x, y, found = voxelize_guarded(pack, mcfg, tcfg, GuardConfig())
+    x0, y0 = voxelize(pack, mcfg, tcfg)
+    assert torch.equal(x, x0) and torch.equal(y, y0)
     labels = np.array([s.label for s in scenes])
     assert found.fired.tolist() == (labels == 0).tolist()
     assert np.all(found.hits[labels == 0] >= GuardConfig().min_cluster_hits)
+    assert np.all(np.isfinite(found.height[labels == 0]))
+    pack.share_memory()
+    x1, _, again = voxelize_guarded(pack, mcfg, tcfg, GuardConfig(), workers=1)
+    assert torch.equal(x1, x0) and again.fired.tolist() == found.fired.tolist()
+    assert again.hits.tolist() == found.hits.tolist()
 
 
 def test_evaluate_with_the_guard_judges_as_the_assessor_does(tmp_path):

@@ -7,7 +7,8 @@ neighbours, fits the tile's ground plane and cuts the centre tile with
 ``tiles.align_to_ground`` says so (the default): the same kernels and steps as the assessor's, so
 the network is trained and judged on what it sees onboard. :func:`patch_counts`
 gives the counts it cuts from (for what else reads a patch, the guard); a
-:class:`PatchVoxelizer` keeps the small maps between patches.
+:class:`PatchVoxelizer` keeps the small maps between patches; :func:`patch_ground` and
+:func:`cut_patch` are its two steps after the counts, for callers that read those counts too.
 """
 from __future__ import annotations
 
@@ -18,13 +19,14 @@ import numpy as np
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError
-from landing_zone.judging.ground import fit_ground
+from landing_zone.judging.ground import TileGround, fit_ground
 from landing_zone.judging.tiles import TileBatch, tile_voxels, tiles_from_counts
 
 if TYPE_CHECKING:
     from landing_zone.mapping.density_map import DensityMap
 
-__all__ = ['scene_to_input', 'patch_counts', 'PatchVoxelizer', 'PATCH_Z_MARGIN']
+__all__ = ['scene_to_input', 'patch_counts', 'patch_ground', 'cut_patch', 'PatchVoxelizer',
+           'PATCH_Z_MARGIN']
 
 # Extra height [m] the patch map of scene_to_input keeps above and below the cube's reach, for
 # ground that is not exactly at z = 0 (slopes, bumps) in a simulated patch.
@@ -97,13 +99,31 @@ def scene_to_input(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig |
     """
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
-    h, p, lo = patch_counts(points, origins, mcfg, tcfg, yaw, z_shift, voxelizer)
-    vs = float(mcfg.voxel_size)
-    tile = np.zeros((1, 2), np.int64)
+    counts = patch_counts(points, origins, mcfg, tcfg, yaw, z_shift, voxelizer)
     # the cube aligned to the tile's ground plane where the assessor aligns it
-    ground = (fit_ground(h, p, lo, vs, tile, tile_voxels(vs, tcfg), tcfg.occupied_density)
-              if tcfg.align_to_ground else None)
-    batch = tiles_from_counts(h, p, lo, vs, tcfg, tile, ground)
+    ground = patch_ground(counts, mcfg, tcfg) if tcfg.align_to_ground else None
+    return cut_patch(counts, mcfg, tcfg, ground, z_shift)
+
+
+def patch_ground(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig
+                 ) -> TileGround:
+    """The ground plane of a patch's centre tile from its counts (:func:`patch_counts`), as
+    the assessor fits a map's (:func:`~landing_zone.judging.ground.fit_ground`)."""
+    h, p, lo = counts
+    vs = float(map_cfg.voxel_size)
+    return fit_ground(h, p, lo, vs, np.zeros((1, 2), np.int64), tile_voxels(vs, tile_cfg),
+                      tile_cfg.occupied_density)
+
+
+def cut_patch(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig,
+              ground: TileGround | None = None, z_shift: float = 0.0) -> TileBatch:
+    """The centre tile of a patch's counts (:func:`patch_counts` with ``z_shift``), cut as
+    :func:`scene_to_input` cuts it: its cube aligned to ``ground`` (:func:`patch_ground`)
+    where ``tile_cfg.align_to_ground`` says so, ``ground_z`` in the patch frame."""
+    h, p, lo = counts
+    # the centre tile is global tile (0, 0)
+    batch = tiles_from_counts(h, p, lo, float(map_cfg.voxel_size), tile_cfg,
+                              np.zeros((1, 2), np.int64), ground)
     batch.centers = np.zeros((1, 2))
     batch.ground_z = batch.ground_z - z_shift
     return batch

@@ -319,22 +319,20 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         pack.share_memory()
     volumes: dict[tuple, Any] = {}
 
-    def volumes_for(key: tuple) -> Any:
+    def volumes_for(key: tuple) -> Any:  # (inputs, labels, the guard's findings or None)
         if key not in volumes:
             m, t = _configs(key)
-            volumes[key] = voxelize(pack, m, t, workers, progress, f'voxelizing {split}')
+            desc = f'voxelizing {split}'
+            if guard:  # the guard's findings from the same read of each patch
+                from landing_zone.config import GuardConfig
+                from landing_zone.learn.scene_guard import voxelize_guarded
+                volumes[key] = voxelize_guarded(pack, m, t, GuardConfig(), workers, progress,
+                                                desc + ' and guarding')
+            else:
+                volumes[key] = (*voxelize(pack, m, t, workers, progress, desc), None)
         return volumes[key]
 
-    guards: dict[tuple, Any] = {}
-
-    def guard_for(key: tuple) -> Any:  # the guard's findings, once per voxelization
-        if key not in guards:
-            from landing_zone.config import GuardConfig
-            from landing_zone.learn.scene_guard import guard_scenes
-            guards[key] = guard_scenes(pack, *_configs(key), GuardConfig(), progress=progress)
-        return guards[key]
-
-    inputs, labels = volumes_for(key0)
+    inputs, labels, _ = volumes_for(key0)
     x = inputs.numpy()
     y = labels.numpy().astype(np.int64)
     train_x = train_y = None
@@ -349,7 +347,7 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
     results = []
     for cnn, key in cnns:
         res = evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
-        results += _guarded(res, guard_for(key), y) if guard else res
+        results += _guarded(res, volumes_for(key)[2], y) if guard else res
     results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
     cnn = cnns[0][0] if cnns else None
     n, n_unsafe = len(y), int((y == 0).sum())

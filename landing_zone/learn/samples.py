@@ -6,7 +6,7 @@ random vertical shift and, for some, the context cut beyond a line in the paddin
 (:class:`AugmentedVolumes`); its randomness comes from ``SeedSequence([seed, epoch, scene,
 copy])``, not from the worker that makes it. :class:`EpochSampler` orders an epoch from
 ``(seed, epoch)``; :func:`voxelize` makes every input of a pack at once (evaluation, the voxel
-cache).
+cache), through :func:`collect`.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from landing_zone.judging.tiles import tile_voxels
 from landing_zone.learn.scenes import ScenePack
 
 __all__ = ['AugmentedVolumes', 'cut_context', 'EpochSampler', 'make_loader', 'voxelize',
-           'VoxelCache']
+           'collect', 'VoxelCache']
 
 
 class AugmentedVolumes(Dataset):
@@ -195,19 +195,37 @@ def voxelize(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, workers:
                           yaw=yaw, edge_drop=edge_drop)
     keys = [(-1, s, c) for s in range(len(pack)) for c in range(copies)]
     side = tile_voxels(map_cfg.voxel_size, tile_cfg) + 2 * tile_cfg.padding
+    out, labels, _ = collect(ds, keys, side, workers, progress, desc, dtype)
+    return out, labels
+
+
+def collect(dataset: Dataset, keys: list[Any], side: int, workers: int = 0,
+            progress: bool = False, desc: str = 'voxelizing', dtype: torch.dtype = torch.float32
+            ) -> tuple[torch.Tensor, torch.Tensor, list[torch.Tensor]]:
+    """Samples ``keys`` of ``dataset`` (each ``(input (1, side, side, side), label, *more)``)
+    made by a loader with ``workers``, in key order.
+
+    Returns:
+        inputs (K, 1, side, side, side) of ``dtype``, labels (K,) float32, and each further
+        output of the samples stacked (K, ...) in a list.
+    """
     out = torch.empty((len(keys), 1, side, side, side), dtype=dtype)
     labels = torch.empty(len(keys), dtype=torch.float32)
-    loader = make_loader(ds, keys, 64, workers)
+    more: list[list[torch.Tensor]] = []
+    loader = make_loader(dataset, keys, 64, workers)
     bar = tqdm(total=len(keys), desc=desc, unit='vol', leave=False, file=sys.stderr,
                disable=not progress)
     pos = 0
-    for x, y in loader:
+    for x, y, *rest in loader:
         out[pos:pos + len(x)] = x.to(dtype)
         labels[pos:pos + len(x)] = y
+        more = more or [[] for _ in rest]
+        for acc, r in zip(more, rest):
+            acc.append(r)
         pos += len(x)
         bar.update(len(x))
     bar.close()
-    return out, labels
+    return out, labels, [torch.cat(acc) for acc in more]
 
 
 @dataclass

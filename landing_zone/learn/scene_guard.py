@@ -1,69 +1,95 @@
-"""The guard on simulated patches: what it would do to each scene of a dataset.
+"""The guard on simulated patches: the network's inputs of a dataset and what the guard finds
+on each scene, from one read of each patch.
 
 :func:`landing_zone.judging.guard.solid_structure` reads a map's hit and pass counts. A synth3
-scene is one tile with its neighbourhood, and evaluation judges it from the cube
-:func:`~landing_zone.judging.patches.scene_to_input` cuts. :func:`guard_scenes` reads the counts
-that cube is cut from (:func:`~landing_zone.judging.patches.patch_counts`, no augmentation), fits
-the tile's ground plane as the assessor does (:func:`~landing_zone.judging.ground.fit_ground`)
-and runs the guard on the centre tile above the plane, or above the tiler's ground where there
-is none, only where the tile is valid: what :meth:`landing_zone.assessor.Assessor.finish_assess`
-does on a map. The network's cube of ``evaluate`` stays level (the dataset's voxelization);
-only the guard follows the plane.
+scene is one tile with its neighbourhood. :class:`GuardedVolumes` integrates each patch once
+(:func:`~landing_zone.judging.patches.patch_counts`), fits the tile's ground plane as the
+assessor does (:func:`~landing_zone.judging.patches.patch_ground`), cuts the network's cube from
+those counts as :func:`~landing_zone.judging.patches.scene_to_input` cuts it
+(:func:`~landing_zone.judging.patches.cut_patch`) and runs the guard on the centre tile above
+the plane, or above the tiler's ground where there is none, only where the tile is valid: what
+:meth:`landing_zone.assessor.Assessor.finish_assess` does on a map. :func:`voxelize_guarded`
+makes both for a whole pack, in loader workers.
 """
 from __future__ import annotations
 
-import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
+import torch
+
+from landing_zone.learn.samples import AugmentedVolumes, collect
 
 if TYPE_CHECKING:
     from landing_zone.config import GuardConfig, MapConfig, TileConfig
     from landing_zone.judging.guard import GuardResult
     from landing_zone.learn.scenes import ScenePack
 
-__all__ = ['guard_scenes']
+__all__ = ['GuardedVolumes', 'voxelize_guarded']
 
 
-def guard_scenes(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig,
-                 guard_cfg: GuardConfig, progress: bool = False) -> GuardResult:
-    """The guard's finding on the centre tile of every scene of ``pack``, in its order.
+class GuardedVolumes(AugmentedVolumes):
+    """Scene ``s`` -> (input (1, S, S, S) float32, label float32, the guard's finding (4,)
+    float64: fired, hits, voxels, height), the input as :func:`voxelize` makes it without
+    augmentation and the finding from the same counts."""
+
+    def __init__(self, pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig,
+                 guard_cfg: GuardConfig) -> None:
+        super().__init__(pack, map_cfg, tile_cfg, seed=0, augment=False)
+        self.guard_cfg = guard_cfg
+
+    def __getitem__(self, key: tuple[int, int, int] | int  # type: ignore[override]
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        from landing_zone.judging.guard import solid_structure
+        from landing_zone.judging.patches import (PatchVoxelizer, cut_patch, patch_counts,
+                                                  patch_ground)
+        from landing_zone.judging.tiles import tile_voxels
+
+        scene = int(key) if isinstance(key, (int, np.integer)) else int(key[1])
+        pts, org = self.pack.scene(scene)
+        if self._voxelizer is None:
+            self._voxelizer = PatchVoxelizer()
+        mcfg, tcfg = self.map_cfg, self.tile_cfg
+        counts = patch_counts(pts, org, mcfg, tcfg, voxelizer=self._voxelizer)
+        ground = patch_ground(counts, mcfg, tcfg)
+        batch = cut_patch(counts, mcfg, tcfg, ground if tcfg.align_to_ground else None)
+        vs = float(mcfg.voxel_size)
+        gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, batch.ground_z)
+        g = solid_structure(*counts, vs, batch.index, np.where(batch.valid, gz, np.nan),
+                            tile_voxels(vs, tcfg), self.guard_cfg, grad=ground.grad)
+        finding = torch.tensor([float(g.fired[0]), float(g.hits[0]), float(g.voxels[0]),
+                                float(g.height[0])], dtype=torch.float64)
+        return (torch.from_numpy(batch.inputs[0]), torch.tensor(float(self.pack.labels[scene])),
+                finding)
+
+
+def voxelize_guarded(pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig,
+                     guard_cfg: GuardConfig, workers: int = 0, progress: bool = False,
+                     desc: str = 'voxelizing and guarding'
+                     ) -> tuple[torch.Tensor, torch.Tensor, GuardResult]:
+    """The network's inputs of every scene of ``pack`` (as :func:`voxelize` makes them, no
+    augmentation) and the guard's finding on each, in scene order.
 
     Args:
         pack: the scenes (patch frame: the tile centred at (0, 0), the ground near z = 0).
         map_cfg: voxel size of the map (only ``voxel_size`` is used).
         tile_cfg: tiling parameters (as the model's inputs were made).
         guard_cfg: the guard's thresholds (the assessor's ``guard`` section).
+        workers: loader processes (0: this one).
         progress: a progress bar on stderr.
 
     Returns:
-        A :class:`~landing_zone.judging.guard.GuardResult` of the scenes; it never fires on a
-        tile that is not valid (too few returns or observed voxels, no ground).
+        inputs (S, 1, side, side, side) float32, labels (S,) float32, and a
+        :class:`~landing_zone.judging.guard.GuardResult` of the scenes; the guard never fires
+        on a tile that is not valid (too few returns or observed voxels, no ground).
     """
-    from landing_zone.judging.ground import fit_ground
-    from landing_zone.judging.guard import GuardResult, solid_structure
-    from landing_zone.judging.patches import PatchVoxelizer, patch_counts
-    from landing_zone.judging.tiles import tile_voxels, tiles_from_counts
+    from landing_zone.judging.guard import GuardResult
+    from landing_zone.judging.tiles import tile_voxels
 
-    vs = float(map_cfg.voxel_size)
-    tv = tile_voxels(vs, tile_cfg)
-    tile = np.zeros((1, 2), np.int64)
-    n = len(pack)
-    fired = np.zeros(n, bool)
-    hits = np.zeros(n, np.int64)
-    voxels = np.zeros(n, np.int64)
-    height = np.full(n, np.nan, np.float32)
-    voxelizer = PatchVoxelizer()
-    for i in tqdm(range(n), desc='guard', unit='scene', leave=False, file=sys.stderr,
-                  disable=not progress):
-        pts, org = pack.scene(i)
-        h, p, lo = patch_counts(pts, org, map_cfg, tile_cfg, voxelizer=voxelizer)
-        ground = fit_ground(h, p, lo, vs, tile, tv, tile_cfg.occupied_density)
-        batch = tiles_from_counts(h, p, lo, vs, tile_cfg, tile, invalid_inputs=False)
-        gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, batch.ground_z)
-        g = solid_structure(h, p, lo, vs, tile, np.where(batch.valid, gz, np.nan), tv,
-                            guard_cfg, grad=ground.grad)
-        fired[i], hits[i], voxels[i], height[i] = g.fired[0], g.hits[0], g.voxels[0], \
-            g.height[0]
-    return GuardResult(fired=fired, hits=hits, voxels=voxels, height=height)
+    side = tile_voxels(map_cfg.voxel_size, tile_cfg) + 2 * tile_cfg.padding
+    ds = GuardedVolumes(pack, map_cfg, tile_cfg, guard_cfg)
+    x, y, (f,) = collect(ds, list(range(len(pack))), side, workers, progress, desc)
+    f = f.numpy()
+    found = GuardResult(fired=f[:, 0] > 0, hits=f[:, 1].astype(np.int64),
+                        voxels=f[:, 2].astype(np.int64), height=f[:, 3].astype(np.float32))
+    return x, y, found
