@@ -238,12 +238,14 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
         if key not in truth:
             continue
         p_guard = min(float(a.p_net[k]), cap) if a.guard[k] else float(a.p_net[k])
-        tiles.append({'safe': truth[key], 'p_net': _num(a.p_net[k]), 'p_guard': _num(p_guard),
+        tiles.append({'x': key[0], 'y': key[1], 'safe': truth[key], 'p_net': _num(a.p_net[k]),
+                      'p_guard': _num(p_guard),
                       'p_safe': _num(a.p_safe[k]), 'ood': _num(ood[k]),
                       'guard': bool(a.guard[k]),
                       'guard_hits': int(a.guard_hits[k]), 'kinds': kinds.get(key, []),
                       'centre': key in centres})
-    doc = {'condition': name, 'seed': seed, 'tiles': tiles, 'ood_reference': res.ood_reference,
+    doc = {'condition': name, 'seed': seed, 'tile_size': float(doc['tile_size']), 'tiles': tiles,
+           'ood_reference': res.ood_reference,
            'obstacles': [o.get('model', o['kind'])
                          for o in json.loads(labels.read_text())['obstacles']],
            'assess_seconds': res.timings['assess'], 'seconds': time.perf_counter() - t0}
@@ -318,10 +320,43 @@ def scores(tiles: list[dict[str, Any]], key: str) -> dict[str, Any]:
     return out
 
 
+def next_to_obstacle(doc: dict[str, Any]) -> list[bool | None]:
+    """Per tile of a flight's result: whether one of its 8 neighbours holds an obstacle (None
+    for results written before the tiles carried their centres)."""
+    if 'tile_size' not in doc:
+        return [None] * len(doc['tiles'])
+    ts = doc['tile_size']
+    blocked = {(round(t['x'] / ts), round(t['y'] / ts)) for t in doc['tiles'] if not t['safe']}
+    out: list[bool | None] = []
+    for t in doc['tiles']:
+        i, j = round(t['x'] / ts), round(t['y'] / ts)
+        out.append(any((i + di, j + dj) in blocked for di in (-1, 0, 1) for dj in (-1, 0, 1)
+                       if di or dj))
+    return out
+
+
+def false_alarms_by_neighbour(docs: list[dict[str, Any]], key: str = 'p_safe'
+                              ) -> dict[str, Any] | None:
+    """The safe tiles judged (P(safe) ``key`` known) and those flagged (< 0.5), next to an
+    obstacle tile and elsewhere: synth3's training scenes never show a safe tile with an
+    obstacle beside it, so this is where a flight's false alarms may come from."""
+    near: dict[bool, list[int]] = {True: [0, 0], False: [0, 0]}
+    for d in docs:
+        for t, nb in zip(d['tiles'], next_to_obstacle(d)):
+            if nb is None:
+                return None
+            if t['safe'] and t[key] is not None:
+                near[nb][0] += 1
+                near[nb][1] += t[key] < 0.5
+    return {'next_to_obstacle': {'safe': near[True][0], 'flagged': near[True][1]},
+            'elsewhere': {'safe': near[False][0], 'flagged': near[False][1]}}
+
+
 def summarise(docs: list[dict[str, Any]]) -> dict[str, Any]:
     tiles = [t for d in docs for t in d['tiles']]
     fired = [t for t in tiles if t['guard']]
     return {'flights': len(docs), 'cnn': scores(tiles, 'p_net'),
+            'false_alarms_by_neighbour': false_alarms_by_neighbour(docs),
             'cnn_guard': scores(tiles, 'p_guard'), 'cnn_guard_ood': scores(tiles, 'p_safe'),
             'guard_fired': len(fired), 'guard_fired_safe': sum(t['safe'] for t in fired),
             'guard_added_alarms': sum(t['safe'] and t['p_net'] is not None
@@ -444,6 +479,13 @@ def main() -> int:
     if obstacle:
         print()
         print(kind_table(summary['all with obstacles']['by_kind']))
+        nb = summary['all with obstacles']['false_alarms_by_neighbour']
+        if nb is not None:
+            print()
+            print('false alarms (net + guard + OOD) on safe tiles: ' + '; '.join(
+                f'{where.replace("_", " ")} {v["flagged"]} of {v["safe"]} '
+                f'({_pct(v["flagged"] / v["safe"] if v["safe"] else None)})'
+                for where, v in nb.items()))
     if args.json is not None:
         args.json.write_text(json.dumps(summary, indent=1) + '\n')
     return 0
