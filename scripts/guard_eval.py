@@ -326,10 +326,14 @@ def next_to_obstacle(doc: dict[str, Any]) -> list[bool | None]:
     if 'tile_size' not in doc:
         return [None] * len(doc['tiles'])
     ts = doc['tile_size']
-    blocked = {(round(t['x'] / ts), round(t['y'] / ts)) for t in doc['tiles'] if not t['safe']}
+
+    def index(t: dict[str, Any]) -> tuple[int, int]:  # tile centres lie on half tiles
+        return math.floor(t['x'] / ts), math.floor(t['y'] / ts)
+
+    blocked = {index(t) for t in doc['tiles'] if not t['safe']}
     out: list[bool | None] = []
     for t in doc['tiles']:
-        i, j = round(t['x'] / ts), round(t['y'] / ts)
+        i, j = index(t)
         out.append(any((i + di, j + dj) in blocked for di in (-1, 0, 1) for dj in (-1, 0, 1)
                        if di or dj))
     return out
