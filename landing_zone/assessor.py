@@ -640,7 +640,7 @@ class Assessor:
         """Judge what :meth:`begin_assess` copied (the tiler's kernel and the network, outside
         the map's lock), store the results and return every tile's state."""
         from landing_zone.judging.ground import fit_ground
-        from landing_zone.judging.guard import guard_p_safe, solid_structure
+        from landing_zone.judging.guard import guard_p_safe, guard_tiles
         from landing_zone.judging.tiles import tiles_from_counts
 
         try:
@@ -677,13 +677,9 @@ class Assessor:
             if batch is not None and counts is not None and ground is not None \
                     and self.config.guard.enabled:
                 # the guard reads the same counts: opaque structure above the ground caps
-                # P(safe); above the ground plane where the tile has one (a slope's uphill
-                # side is ground), else above the tiler's ground
-                has = np.isfinite(ground.plane_z)
-                gz = np.where(has, ground.plane_z, batch.ground_z)
-                guard = solid_structure(*counts, self.config.map.voxel_size, batch.index,
-                                        np.where(batch.valid, gz, np.nan), self.tile_vox,
-                                        self.config.guard, grad=ground.grad)
+                # P(safe)
+                guard = guard_tiles(counts, self.config.map.voxel_size, batch, ground,
+                                    self.tile_vox, self.config.guard)
                 p = guard_p_safe(p_net, guard, self.config.guard)
             # after the guard: a "safe" the network gives a tile unlike its training data is
             # not trusted (NaN ratios, tiles not judged or no reference, compare False)

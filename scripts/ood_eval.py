@@ -108,7 +108,7 @@ def flight_tiles(path: Path, model: Any, guard: bool) -> dict[str, np.ndarray]:
     (with ``guard``, P(safe) capped where the shipped guard fires)."""
     from landing_zone.config import GuardConfig, MapConfig, TileConfig
     from landing_zone.judging.ground import fit_ground
-    from landing_zone.judging.guard import guard_p_safe, solid_structure
+    from landing_zone.judging.guard import guard_p_safe, guard_tiles
     from landing_zone.judging.tiles import tile_voxels, tiles_from_counts
 
     d = np.load(path)
@@ -128,10 +128,8 @@ def flight_tiles(path: Path, model: Any, guard: bool) -> dict[str, np.ndarray]:
     x = b.inputs[keep]
     f, p = penultimate(model, x)
     if guard:
-        gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, b.ground_z)
-        g = solid_structure(d['hits'], d['passes'], d['lo'], vs, b.index[keep], gz[keep], tv,
-                            GuardConfig(), grad=ground.grad[keep])
-        p = guard_p_safe(p, g, GuardConfig())
+        g = guard_tiles((d['hits'], d['passes'], d['lo']), vs, b, ground, tv, GuardConfig())
+        p = guard_p_safe(p, g[keep], GuardConfig())
     return {'flight': np.full(len(p), path.stem), 'features': f,
             'stats': input_stats(x, b.n_returns[keep], b.observed_fraction[keep]),
             'safe': np.array([truth[k] for k, m in zip(keys, keep) if m], bool), 'p': p}

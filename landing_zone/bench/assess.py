@@ -7,7 +7,7 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
   level), and the assessor's own cut, which the full-map and strip figures count: the counts
   read once, the cubes aligned to the tiles' ground planes (``tiles.align_to_ground``) and
   pooled for the net, only the valid tiles' built;
-- the guard beside the network (:func:`~landing_zone.judging.guard.solid_structure`) on the same
+- the guard beside the network (:func:`~landing_zone.judging.guard.guard_tiles`) on the same
   counts, as the assessor runs it; the full-map and strip figures include it;
 - the ground planes (:func:`~landing_zone.judging.ground.fit_ground`: slope, roughness,
   clearance) on the same counts and the landing-site candidates with their limits and reasons
@@ -48,7 +48,7 @@ from landing_zone.mapping.density_map import DensityMap
 from landing_zone.judging.checkpoint import load_model
 from landing_zone.judging.ensemble import SafetyEnsemble
 from landing_zone.judging.ground import fit_ground
-from landing_zone.judging.guard import solid_structure
+from landing_zone.judging.guard import guard_tiles
 from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_sites
 from landing_zone.judging.inference import Predictor, bf16_supported
 from landing_zone.judging.net import DEFAULT_SPEC, PAPER_SPEC, SafetyNet, SafetyNetConfig
@@ -222,10 +222,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
 
     def guard(b, g, read) -> None:
         # as the assessor runs it: on the counts it read for the tiler, above the ground planes
-        h, p, lo = read
-        gz = np.where(np.isfinite(g.plane_z), g.plane_z, b.ground_z)
-        solid_structure(h, p, lo, dmap.voxel_size, b.index, np.where(b.valid, gz, np.nan),
-                        tv, gcfg, grad=g.grad)
+        guard_tiles(read, dmap.voxel_size, b, g, tv, gcfg)
 
     scfg = SiteConfig()
     nxy = tuple(int(v) for v in batch.index.max(axis=0) - batch.index.min(axis=0) + 1)

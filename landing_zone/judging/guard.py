@@ -47,8 +47,10 @@ import numpy as np
 
 if TYPE_CHECKING:
     from landing_zone.config import GuardConfig
+    from landing_zone.judging.ground import TileGround
+    from landing_zone.judging.tiles import TileBatch
 
-__all__ = ['GuardResult', 'solid_structure', 'guard_p_safe', 'REASON_SOLID']
+__all__ = ['GuardResult', 'solid_structure', 'guard_tiles', 'guard_p_safe', 'REASON_SOLID']
 
 # The reason recorded on a tile the guard capped.
 REASON_SOLID = 'solid structure above the ground'
@@ -73,6 +75,9 @@ class GuardResult:
 
     def __len__(self) -> int:
         return int(self.fired.shape[0])
+
+    def __getitem__(self, sel: np.ndarray | slice) -> GuardResult:
+        return GuardResult(self.fired[sel], self.hits[sel], self.voxels[sel], self.height[sel])
 
 
 @nb.njit(cache=True, parallel=True)
@@ -249,6 +254,17 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
     fired = out_hits >= int(config.min_cluster_hits)
     height = np.where(out_top >= 0, (out_top + 0.5) * voxel_size, np.nan).astype(np.float32)
     return GuardResult(fired=fired, hits=out_hits, voxels=out_vox, height=height)
+
+
+def guard_tiles(counts: tuple[np.ndarray, np.ndarray, np.ndarray], voxel_size: float,
+                batch: TileBatch, ground: TileGround, tile_vox: int, config: GuardConfig
+                ) -> GuardResult:
+    """:func:`solid_structure` on the tiles of a cut, as the assessor runs it: on the counts
+    ``(hits, passes, lo)`` the tiles were cut from, above each tile's ground plane where it has
+    one (a slope's uphill side is ground), else above the tiler's ground, valid tiles only."""
+    gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, batch.ground_z)
+    return solid_structure(*counts, voxel_size, batch.index, np.where(batch.valid, gz, np.nan),
+                           tile_vox, config, grad=ground.grad)
 
 
 def guard_p_safe(p_safe: np.ndarray, result: GuardResult, config: GuardConfig) -> np.ndarray:

@@ -40,7 +40,7 @@ class GuardedVolumes(AugmentedVolumes):
 
     def __getitem__(self, key: tuple[int, int, int] | int  # type: ignore[override]
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        from landing_zone.judging.guard import solid_structure
+        from landing_zone.judging.guard import guard_tiles
         from landing_zone.judging.patches import (PatchVoxelizer, cut_patch, patch_counts,
                                                   patch_ground)
         from landing_zone.judging.tiles import tile_voxels
@@ -54,9 +54,7 @@ class GuardedVolumes(AugmentedVolumes):
         ground = patch_ground(counts, mcfg, tcfg)
         batch = cut_patch(counts, mcfg, tcfg, ground if tcfg.align_to_ground else None)
         vs = float(mcfg.voxel_size)
-        gz = np.where(np.isfinite(ground.plane_z), ground.plane_z, batch.ground_z)
-        g = solid_structure(*counts, vs, batch.index, np.where(batch.valid, gz, np.nan),
-                            tile_voxels(vs, tcfg), self.guard_cfg, grad=ground.grad)
+        g = guard_tiles(counts, vs, batch, ground, tile_voxels(vs, tcfg), self.guard_cfg)
         finding = torch.tensor([float(g.fired[0]), float(g.hits[0]), float(g.voxels[0]),
                                 float(g.height[0])], dtype=torch.float64)
         return (torch.from_numpy(batch.inputs[0]), torch.tensor(float(self.pack.labels[scene])),
