@@ -32,34 +32,26 @@ DENSE = 0.4  # density of a "dense" voxel
 def scene_features(data: str, split: str) -> list[dict]:
     """The evidence features of every scene, in the dataset's order."""
     from landing_zone.config import MapConfig, TileConfig
-    from landing_zone.judging.patches import (PatchVoxelizer, cut_patch, patch_counts,
-                                              patch_ground)
-    from landing_zone.judging.tiles import tile_voxels
+    from landing_zone.judging.patches import (PatchVoxelizer, centre_columns, cut_patch,
+                                              patch_counts, patch_ground)
     from landing_zone.learn.scenes import ScenePack
     from landing_zone.sim.shards import SceneDataset
 
     pack = ScenePack.from_scenes(SceneDataset(data, split))
     mcfg, tcfg = MapConfig(), TileConfig()
     vs = float(mcfg.voxel_size)
-    tv = tile_voxels(vs, tcfg)
     voxelizer = PatchVoxelizer()
-    centre = (np.arange(tv) + 0.5) * vs - tcfg.tile_size / 2  # voxel centres in the tile [m]
     rows = []
     for i in range(len(pack)):
         pts, org = pack.scene(i)
         counts = patch_counts(pts, org, mcfg, tcfg, voxelizer=voxelizer)
-        h, p, lo = counts
         ground = patch_ground(counts, mcfg, tcfg)
         batch = cut_patch(counts, mcfg, tcfg, ground)
         plane_z = float(ground.plane_z[0])
         grad = ground.grad[0] if np.isfinite(plane_z) else np.zeros(2)
         gz = plane_z if np.isfinite(plane_z) else float(batch.ground_z[0])
-        # the centre tile is global tile (0, 0): voxels [0, tv) in x and y
-        hh = h[-lo[0]:-lo[0] + tv, -lo[1]:-lo[1] + tv].astype(np.float64)  # (tv, tv, Z)
-        pp = p[-lo[0]:-lo[0] + tv, -lo[1]:-lo[1] + tv].astype(np.float64)
-        plane = gz + grad[0] * centre[:, None] + grad[1] * centre[None, :]  # (tv, tv)
-        z = (np.arange(hh.shape[2]) + lo[2] + 0.5) * vs
-        above = z[None, None, :] - plane[:, :, None]  # (tv, tv, Z) height above the plane
+        h, p, above = centre_columns(counts, mcfg, tcfg, gz, grad)  # (tv, tv, Z) each
+        hh, pp = h.astype(np.float64), p.astype(np.float64)
         hit = hh > 0
         dense = hit & ((hh + 1) / (hh + pp + 2) >= DENSE)
         row = {'label': int(pack.labels[i]), 'valid': bool(batch.valid[0])}

@@ -21,8 +21,8 @@ import json
 import numpy as np
 
 from landing_zone.config import MapConfig, TileConfig
-from landing_zone.judging.ground import fit_ground
-from landing_zone.judging.patches import PatchVoxelizer, patch_counts
+from landing_zone.judging.patches import (PatchVoxelizer, centre_columns, patch_counts,
+                                          patch_ground)
 from landing_zone.judging.tiles import tile_voxels
 from landing_zone.sim.shards import SceneDataset
 
@@ -34,20 +34,15 @@ def lowest_reached(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig,
                    tile_cfg: TileConfig, voxelizer: PatchVoxelizer) -> np.ndarray:
     """(tv, tv) height above the tile's fitted ground plane of the lowest voxel any ray reached
     in each column of the centre tile [m]; inf where none was reached or no plane was fitted."""
-    vs = float(map_cfg.voxel_size)
-    tv = tile_voxels(vs, tile_cfg)
-    h, p, lo = patch_counts(points, origins, map_cfg, tile_cfg, voxelizer=voxelizer)
-    g = fit_ground(h, p, lo, vs, np.zeros((1, 2), np.int64), tv, tile_cfg.occupied_density)
+    counts = patch_counts(points, origins, map_cfg, tile_cfg, voxelizer=voxelizer)
+    g = patch_ground(counts, map_cfg, tile_cfg)
     plane_z = float(g.plane_z[0])
     if not np.isfinite(plane_z):
+        tv = tile_voxels(float(map_cfg.voxel_size), tile_cfg)
         return np.full((tv, tv), np.inf)
-    # the centre tile is global tile (0, 0): box columns -lo .. -lo + tv
-    sl = (slice(-lo[0], -lo[0] + tv), slice(-lo[1], -lo[1] + tv))
-    seen = (h[sl].astype(np.int64) + p[sl]) > 0
-    z = (lo[2] + np.arange(h.shape[2]) + 0.5) * vs
-    c = (np.arange(tv) + 0.5) * vs - 0.5 * tile_cfg.tile_size
-    plane = plane_z + g.grad[0, 0] * c[:, None] + g.grad[0, 1] * c[None, :]
-    return np.where(seen, z[None, None, :] - plane[:, :, None], np.inf).min(axis=-1)
+    h, p, above = centre_columns(counts, map_cfg, tile_cfg, plane_z, g.grad[0])
+    seen = (h.astype(np.int64) + p) > 0
+    return np.where(seen, above, np.inf).min(axis=-1)
 
 
 def main() -> None:

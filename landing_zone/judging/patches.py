@@ -25,8 +25,8 @@ from landing_zone.judging.tiles import TileBatch, tile_voxels, tiles_from_counts
 if TYPE_CHECKING:
     from landing_zone.mapping.density_map import DensityMap
 
-__all__ = ['scene_to_input', 'patch_counts', 'patch_ground', 'cut_patch', 'PatchVoxelizer',
-           'PATCH_Z_MARGIN']
+__all__ = ['scene_to_input', 'patch_counts', 'patch_ground', 'cut_patch', 'centre_columns',
+           'PatchVoxelizer', 'PATCH_Z_MARGIN']
 
 # Extra height [m] the patch map of scene_to_input keeps above and below the cube's reach, for
 # ground that is not exactly at z = 0 (slopes, bumps) in a simulated patch.
@@ -127,6 +127,22 @@ def cut_patch(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: Tile
     batch.centers = np.zeros((1, 2))
     batch.ground_z = batch.ground_z - z_shift
     return batch
+
+
+def centre_columns(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig,
+                   ground_z: float, grad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The centre tile's voxel columns of a patch's counts (:func:`patch_counts`): ``(hits,
+    passes, above)``, each (tv, tv, Z), ``above`` every voxel centre's height [m] over the plane
+    through ``ground_z`` at the tile's centre with gradient ``grad`` (dz/dx, dz/dy)."""
+    h, p, lo = counts
+    vs = float(map_cfg.voxel_size)
+    tv = tile_voxels(vs, tile_cfg)
+    # the centre tile is global tile (0, 0): box columns -lo .. -lo + tv
+    sl = (slice(-lo[0], -lo[0] + tv), slice(-lo[1], -lo[1] + tv))
+    c = (np.arange(tv) + 0.5) * vs - 0.5 * tile_cfg.tile_size  # voxel centres in the tile
+    plane = ground_z + grad[0] * c[:, None] + grad[1] * c[None, :]  # (tv, tv)
+    z = (lo[2] + np.arange(h.shape[2]) + 0.5) * vs
+    return h[sl], p[sl], z[None, None, :] - plane[:, :, None]
 
 
 def patch_counts(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
