@@ -770,6 +770,10 @@ def simulate(
         help='synth3: draw obstacles from these families, comma separated (e.g. frame,mesh; '
              'all, train, test) instead of the 17 synth3 was made with; such a dataset shares '
              'no draw with the default one.')] = None,
+    edge: Annotated[float, typer.Option(
+        help='synth3: the share of twin pairs (0-1) whose obstacle stands at the tile\'s edge: '
+             '5-30 cm in in the unsafe scene, 2-30 cm beyond it in the safe one (an obstacle '
+             'in the next tile); such a dataset shares no draw with the default one.')] = 0.0,
 ) -> None:
     from landing_zone.engines import check_engine
     from landing_zone.errors import ConfigError
@@ -786,9 +790,9 @@ def simulate(
         if scenes is not None or split != 'both':
             raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
                               'flight: not --scenes or --split')
-        if families is not None:  # (synth1/synth2: simulate_dataset refuses it)
-            raise ConfigError('--families is a synth3 option; hybrid inserts the library\'s '
-                              'obstacles')
+        if families is not None or edge:  # (synth1/synth2: simulate_dataset refuses them)
+            raise ConfigError('--families and --edge are synth3 options; hybrid inserts the '
+                              'library\'s obstacles')
         s = simulate_hybrid(from_ or [], out, test_flights=test_from or [], patches=patches,
                             seed=seed, region=region, points_topic=points_topic,
                             pose_topic=pose_topic, progress=not quiet)
@@ -802,7 +806,8 @@ def simulate(
         s = simulate_dataset(dataset.value, out, scenes=scenes, workers=workers, seed=seed,
                              split=split, progress=not quiet, engine=engine.value,
                              address=address,
-                             families=None if families is None else parse_families(families))
+                             families=None if families is None else parse_families(families),
+                             edge=edge)
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '

@@ -324,3 +324,65 @@ def test_other_families_draw_only_those_and_share_no_draw(tmp_path):
         scene_plan(0, 0, ('coil',))
     with pytest.raises(SimulationError, match='--families is a synth3 option'):
         simulate_dataset('synth2', tmp_path / 's2', scenes=2, families=('frame',))
+
+
+def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_path):
+    """--edge: in that share of pairs both scenes hold the same instance turned the same way at
+    one edge of the tile; in the unsafe scene its standing part reaches ``reach`` in, in the
+    safe one its whole footprint stands ``gap`` beyond (the tile labels of flights agree). Off,
+    the plans are synth3's own; on, the dataset records the share, shares no draw with the
+    default one, and refuses to be resumed with another share."""
+    from landing_zone.errors import SimulationError
+    from landing_zone.sim.families import instance
+    from landing_zone.sim.flight import polygon_overlaps_square
+    from landing_zone.sim.obstacles import Obstacle
+    from landing_zone.sim.synth3 import EDGE_GAP, EDGE_REACH
+
+    default = [scene_plan(i, 0) for i in range(60)]
+    assert [scene_plan(i, 0, None, 0.0) for i in range(60)] == default
+    plans = [scene_plan(i, 0, None, 0.5) for i in range(600)]
+    at_edge = [p for p in plans if 'edge' in p]
+    assert 0.4 < len(at_edge) / len(plans) < 0.6
+    assert all(plans[2 * k]['edge'] == plans[2 * k + 1]['edge']
+               for k in range(300) if 'edge' in plans[2 * k])
+    assert [p['vegetation'] for p in plans[:40]] != [p['vegetation'] for p in default[:40]]
+    for p in at_edge:
+        assert EDGE_GAP[0] <= p['edge']['gap'] <= EDGE_GAP[1]
+        assert EDGE_REACH[0] <= p['edge']['reach'] <= EDGE_REACH[1]
+
+    root = tmp_path / 'edge'
+    simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2, progress=False,
+                     edge=1.0)
+    ds = SceneDataset(root, 'all')
+    assert ds.meta['edge']['share'] == 1.0 and ds.meta['edge']['pairs'] == 2
+    lo, hi = np.array([-0.5, -0.5]), np.array([0.5, 0.5])
+    scenes = [ds[i] for i in range(len(ds))]
+    for pair in (scenes[:2], scenes[2:]):
+        obs = {}
+        for sc in pair:
+            p, ob = sc.params, sc.params['obstacle']
+            placed = Obstacle(instance(p['family'], p['instance']).model, ob['x'], ob['y'],
+                              ob['z'], ob['yaw'])
+            fp = placed.footprint()
+            a = 0.5 * np.pi * p['edge']['side']
+            out = np.array([np.cos(a), np.sin(a)])
+            if sc.label == 1:  # wholly beyond the edge, by the gap
+                assert not polygon_overlaps_square(fp, lo, hi)
+                assert np.min(fp @ out) == pytest.approx(0.5 + p['edge']['gap'], abs=1e-3)
+            else:  # overlapping, and what stands reaches in by the reach
+                assert polygon_overlaps_square(fp, lo, hi)
+                v = placed.vertices()
+                inner = v[np.all(np.abs(v[:, :2]) < 0.5, axis=1)]
+                assert len(inner) and np.max(inner[:, 2] - placed.z) > 0.05
+                assert np.min(v[:, :2] @ out) <= 0.5 - p['edge']['reach'] + 1e-3
+                inside = np.all(np.abs(sc.points[:, :2]) < 0.5, axis=1)
+                assert np.any(inside & (sc.hit_class == 2))  # the tile sees it
+            obs[sc.label] = ob
+        assert obs[0]['model'] == obs[1]['model'] and obs[0]['yaw'] == obs[1]['yaw']
+    with pytest.raises(DatasetError):
+        simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2,
+                         progress=False, edge=0.5)
+    with pytest.raises(SimulationError, match='--edge must be a share'):
+        scene_plan(0, 0, None, 1.5)
+    with pytest.raises(SimulationError, match='--edge is a synth3 option'):
+        simulate_dataset('synth2', tmp_path / 's2', scenes=2, edge=0.5)

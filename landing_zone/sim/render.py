@@ -167,6 +167,14 @@ def _render_models(models: list[Any], titles: list[str], out: str | os.PathLike,
     return out
 
 
+def _verdict(label: int, obstacle: dict[str, Any] | None) -> str:
+    """A scene's label as its title says it (a safe synth3 edge scene has an obstacle beside
+    the tile)."""
+    if label == 0:
+        return 'unsafe' + (f", {obstacle['model']}" if obstacle else '')
+    return 'safe' + (f", {obstacle['model']} beyond the tile's edge" if obstacle else '')
+
+
 def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
     from landing_zone.sim.shards import SceneDataset
     ds = SceneDataset(root, split)
@@ -195,7 +203,7 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
         where = (f"{p.get('grass_density'):g} blades/m^2, {p.get('grass_height'):g} m, sensor "
                  f"at x {p.get('sensor_offset'):g} m, {p.get('sensor_height'):g} m up")
     title = (f"{p.get('dataset')} scene {p.get('index')} ({p.get('split')}): "
-             f"{'unsafe, ' + p['obstacle']['model'] if p.get('obstacle') else 'safe'}; "
+             f"{_verdict(scene.label, p.get('obstacle'))}; "
              f"{where}, {len(scene.points):,} returns")
     # The column and a little around it: far returns of rays that passed above the tile are
     # kept in the data but would shrink the tile to a dot.

@@ -30,6 +30,16 @@ the same split rule (train pairs from the train families among them); such a dat
 families in ``meta.json`` and mixes their codes into every seed, so it shares no draw with the
 default one.
 
+**Obstacles at the tile's edge** (``edge``, ``landing-zone simulate --dataset synth3 --edge
+0.5``): in that share of the pairs both scenes hold the obstacle at one edge of the tile, the same
+instance turned the same way: in the unsafe scene its part standing 10 cm or more above the
+ground (its upper half, if lower) reaches 5-30 cm into the tile; in the safe one the whole of it
+stands 2-30 cm beyond the edge, where the network's context still sees it (an obstacle in the
+next tile, as on every site). Elsewhere a safe scene holds no obstacle and an unsafe one's
+obstacle reaches at least half its radius in, so without these pairs the net never learns where
+a neighbour's obstacle ends. Such a dataset records the share in ``meta.json`` and mixes it into
+every seed, as other ``families`` are.
+
 **Leave one family out.** Every scene's ``params`` name its ``family`` (obstacle; the safe twin
 names its pair's), ``vegetation``, ``terrain`` and ``sensor``, and ``meta.json`` lists them per
 shard, so a trainer can drop a family without reading a shard (:mod:`landing_zone.learn.lofo`,
@@ -38,7 +48,8 @@ reports each family of the test split.
 
 **Format, determinism, resuming**: as synth1/synth2 (:mod:`landing_zone.sim.dataset`); scene
 ``i`` draws its world from ``SeedSequence([seed, 3, i])``, its pair's plan from
-``SeedSequence([seed, 3, pair, PLAN])`` (with other ``families``, their codes appended to both).
+``SeedSequence([seed, 3, pair, PLAN])`` (with other ``families``, their codes appended to both;
+with ``edge``, its word and the share in thousandths after them).
 """
 from __future__ import annotations
 
@@ -54,10 +65,14 @@ from landing_zone.errors import SimulationError
 __all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_families',
            'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
            'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta', 'generate_scene',
-           'FAMILY_AXES']
+           'FAMILY_AXES', 'check_edge', 'EDGE_GAP', 'EDGE_REACH']
 
 SYNTH3_CODE = 3  # the dataset's word in every seed
 _PLAN = 0x91A4  # the plan's word
+_EDGE = 0xED6E  # the word of a dataset with obstacles at the tile's edge
+EDGE_GAP = (0.02, 0.3)  # [m] a safe scene's obstacle stands this far beyond the tile's edge
+EDGE_REACH = (0.05, 0.3)  # [m] an unsafe one's reaches this far in
+_EDGE_TALL = 0.10  # [m] what counts as reaching in: the part this high above the ground ...
 TEST_FRACTION = 0.25
 DEFAULT_SCENES = 40_000
 MAX_SCENES = 1 << 24
@@ -194,35 +209,59 @@ def check_families(families: Sequence[str] | None) -> tuple[str, ...] | None:
     return None if names == SYNTH3_FAMILIES else names
 
 
-def _family_key(families: tuple[str, ...] | None) -> list[int]:
+def check_edge(edge: float) -> float:
+    """``edge`` (the share of pairs at the tile's edge) as the plan takes it: rounded to
+    thousandths.
+
+    Raises:
+        SimulationError: not a number from 0 to 1.
+    """
+    if (isinstance(edge, bool) or not isinstance(edge, (int, float, np.floating))
+            or not 0.0 <= float(edge) <= 1.0):
+        raise SimulationError(f'synth3 --edge must be a share from 0 to 1, got {edge!r}')
+    return round(float(edge), 3)
+
+
+def _variant_key(families: tuple[str, ...] | None, edge: float) -> list[int]:
+    """What a dataset other than synth3's own mixes into every seed (nothing for its own)."""
     from landing_zone.sim.families import get_family
-    return [] if families is None else [get_family(n).code for n in families]
+    key = [] if families is None else [get_family(n).code for n in families]
+    return key + ([_EDGE, int(round(1000 * edge))] if edge > 0 else [])
 
 
-def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None
-               ) -> dict[str, Any]:
+def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None,
+               edge: float = 0.0) -> dict[str, Any]:
     """Everything scene ``index`` is before its world is drawn (JSON-ready); ``families``:
-    the obstacle families to draw from (None: :data:`SYNTH3_FAMILIES`)."""
+    the obstacle families to draw from (None: :data:`SYNTH3_FAMILIES`); ``edge``: the share of
+    pairs whose obstacle stands at the tile's edge (the plan's ``edge``: which side, where
+    along it, how far beyond it in the safe scene, how far in in the unsafe one)."""
     from landing_zone.sim.families import TEST_BASE
     from landing_zone.sim.vegetation import VEGETATION_FAMILIES, draw_vegetation
     index = _check_index(index)
     fams = check_families(families)
+    edge = check_edge(edge)
     pair = index // 2
     split = _pair_split(pair)
     unsafe = (index % 2) == _pair_unsafe_member(pair)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]
-                                                       + _family_key(fams)))
+                                                       + _variant_key(fams, edge)))
     every = SYNTH3_FAMILIES if fams is None else fams
     pool = _train_among(every) if split == 'train' else every
     family = pool[int(rng.integers(len(pool)))]
     veg = VEGETATION_FAMILIES[int(rng.integers(len(VEGETATION_FAMILIES)))]
-    return {'dataset': 'synth3', 'index': index, 'pair': pair, 'split': split,
+    plan = {'dataset': 'synth3', 'index': index, 'pair': pair, 'split': split,
             'label': 0 if unsafe else 1, 'family': family,
             'instance': pair + (TEST_BASE if split == 'test' else 0),
             'vegetation': draw_vegetation(veg, rng),
             'hide': _r(rng.uniform(0.6, 1.1)) if rng.uniform() < HIDE_SHARE else None,
             'terrain': _terrain_plan(rng), 'sensor': _sensor_plan(rng),
             'inside': bool(rng.uniform() < 0.5)}
+    if edge > 0 and rng.uniform() < edge:  # (drawn after all else: the other draws stay)
+        plan['edge'] = {'side': int(rng.integers(4)), 'along': _r(rng.uniform(-0.45, 0.45)),
+                        'gap': _r(rng.uniform(*EDGE_GAP)),
+                        'reach': _r(rng.uniform(*EDGE_REACH)),
+                        'yaw': _r(rng.uniform(0.0, 2.0 * math.pi))}
+    return plan
 
 
 def families_of(plan: dict[str, Any]) -> dict[str, str]:
@@ -251,17 +290,20 @@ def select_scenes(scenes: int | None = None, split: str = 'both') -> np.ndarray:
 
 
 def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
-              selected: np.ndarray, families: Sequence[str] | None = None) -> dict[str, Any]:
+              selected: np.ndarray, families: Sequence[str] | None = None,
+              edge: float = 0.0) -> dict[str, Any]:
     """meta.json of a synth3 directory (the synth2 layout, plus the families of every scene;
-    with other ``families``, their names under ``obstacle_families``)."""
+    with other ``families``, their names under ``obstacle_families``; with ``edge``, the share
+    and its ranges under ``edge``)."""
     from landing_zone.sim.shards import FORMAT_VERSION, shard_name as _shard_name
     from landing_zone.sim.families import get_family
     from landing_zone.sim.scene import PatchConfig
     from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, VEGETATION_FAMILIES
     chosen = check_families(families)
+    edge = check_edge(edge)
     every = SYNTH3_FAMILIES if chosen is None else chosen
     train = _train_among(every)
-    plans = [scene_plan(int(i), seed, chosen) for i in selected]
+    plans = [scene_plan(int(i), seed, chosen, edge) for i in selected]
     counts = {s: {'safe': 0, 'unsafe': 0} for s in ('train', 'test')}
     for p in plans:
         counts[p['split']]['safe' if p['label'] == 1 else 'unsafe'] += 1
@@ -281,6 +323,9 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
         'n_scenes': len(plans), 'shard_size': shard_size, 'test_fraction': TEST_FRACTION,
         'counts': counts,
         **({'obstacle_families': list(chosen)} if chosen is not None else {}),
+        **({'edge': {'share': edge, 'gap': list(EDGE_GAP), 'reach': list(EDGE_REACH),
+                     'tall': _EDGE_TALL, 'pairs': sum('edge' in p for p in plans) // 2}}
+           if edge > 0 else {}),
         'obstacle_split': {'train': list(train),
                            'test': [n for n in every if n not in train],
                            'instances': 'train: index < TEST_BASE, test: TEST_BASE + pair'},
@@ -338,9 +383,31 @@ def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: 
                        grade=grade)
 
 
+def _edge_xy(model: Any, edge: dict[str, Any], reaching: bool, tile_size: float
+             ) -> tuple[float, float]:
+    """Where a pair's obstacle stands at the tile's edge (a plan's ``edge``): its part standing
+    :data:`_EDGE_TALL` above the ground (its upper half, if lower) ``reach`` into the tile when
+    ``reaching``, else its whole footprint ``gap`` beyond the edge; in both, that part's innermost
+    vertex ``along`` the edge."""
+    from landing_zone.sim.obstacles import Obstacle
+    v = Obstacle(model, 0.0, 0.0, 0.0, edge['yaw']).vertices()
+    a = 0.5 * math.pi * edge['side']
+    out = np.array([math.cos(a), math.sin(a)])  # the edge's outward normal
+    lateral = np.array([-out[1], out[0]])
+    depth = v[:, :2] @ out
+    above = v[:, 2] - model.embed
+    tall = np.flatnonzero(above >= min(_EDGE_TALL, 0.5 * float(above.max())))
+    k = tall[np.argmin(depth[tall])]
+    half = 0.5 * tile_size
+    n = half - edge['reach'] - depth[k] if reaching else half + edge['gap'] - depth.min()
+    xy = n * out + (edge['along'] - v[k, :2] @ lateral) * lateral
+    return float(xy[0]), float(xy[1])
+
+
 def generate_scene(index: int, seed: int = 0, threads: int = 1,
-                   families: Sequence[str] | None = None) -> dict[str, Any]:
-    """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own): the
+                   families: Sequence[str] | None = None, edge: float = 0.0) -> dict[str, Any]:
+    """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own;
+    ``edge``: the share of pairs at the tile's edge): the
     record :func:`landing_zone.sim.dataset.generate_scene` returns (``points_mm``,
     ``hit_class``, ``origin_index``, ``origins``, ``origin_times``, ``label``, ``split``,
     ``params``, ``rays``, ``timings``)."""
@@ -356,9 +423,10 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     fams = check_families(families)
-    plan = scene_plan(index, seed, fams)
+    edge = check_edge(edge)
+    plan = scene_plan(index, seed, fams, edge)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, int(index)]
-                                                       + _family_key(fams)))
+                                                       + _variant_key(fams, edge)))
     patch = PatchConfig()
     aoi, box = patch.aoi, patch.column
     inst = instance(plan['family'], plan['instance'])
@@ -379,7 +447,10 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     pad = 2.0 * tcfg.spacing
     terrain = SlopedTerrain(tcfg, rng, lo - pad, hi + pad, tp['slope'], tp['azimuth'])
     obstacle = None
-    if plan['label'] == 0:
+    if 'edge' in plan:  # both scenes of the pair: beyond the edge, or reaching in
+        x, y = _edge_xy(model, plan['edge'], plan['label'] == 0, patch.tile_size)
+        obstacle = keep_visible(place(model, x, y, plan['edge']['yaw'], terrain), terrain)
+    elif plan['label'] == 0:
         # Inside the tile for any yaw, or straddling its edge with half its radius inside (as
         # synth2 places them).
         free = (0.5 * patch.tile_size - model.radius if plan['inside']
