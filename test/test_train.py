@@ -325,6 +325,24 @@ def test_augmentation_is_a_function_of_seed_epoch_scene_and_copy():
         == (0.0, 0.0, [])
 
 
+def test_a_scene_at_the_tiles_edge_turns_by_quarter_turns_only():
+    """An obstacle 2 cm beyond the edge must not be turned into the tile (nor one reaching in
+    turned out of it): such scenes take the drawn yaw rounded to a quarter turn, and the rest
+    of their draws, and every other scene's, stay as they were."""
+    pack = ScenePack.from_scenes(toy_scenes(4, seed=9))
+    plain = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
+    pack.params[1]['edge'] = {'side': 0, 'along': 0.1, 'gap': 0.02, 'reach': 0.1, 'yaw': 0.0}
+    ds = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
+    quarter = 0.5 * np.pi
+    for e in range(3):
+        for c in range(8):
+            assert ds.draw(e, 0, c) == plain.draw(e, 0, c)
+            (yaw, dz, cuts), (yaw0, dz0, cuts0) = ds.draw(e, 1, c), plain.draw(e, 1, c)
+            assert (dz, cuts) == (dz0, cuts0)
+            assert yaw in (0.0, quarter, 2 * quarter, 3 * quarter)
+            assert min(abs(yaw - yaw0), 2 * np.pi - abs(yaw - yaw0)) <= quarter / 2 + 1e-12
+
+
 def test_edge_drop_cuts_only_the_context():
     pack = ScenePack.from_scenes(toy_scenes(2, seed=9))
     plain = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)

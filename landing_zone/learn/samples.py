@@ -39,6 +39,11 @@ class AugmentedVolumes(Dataset):
     in a third of them: a corner), so the net sees tiles at the edge of a scanned area, whose
     context is partly unobserved, as the deployed map shows them; the tile itself and so its
     label are untouched.
+
+    A scene whose obstacle stands at the tile's edge (synth3 ``--edge``: just beyond it, or just
+    reaching in) turns by a quarter turn only (the yaw drawn, rounded): any other yaw turns the
+    square tile under it, which would bring a neighbour's obstacle 2 cm beyond the edge into a
+    safe tile (or take one reaching 5 cm in out of an unsafe one) and teach the wrong label.
     """
 
     def __init__(self, pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, seed: int,
@@ -52,6 +57,7 @@ class AugmentedVolumes(Dataset):
         self.z_shift = float(z_shift)
         self.yaw = bool(yaw)
         self.edge_drop = float(edge_drop)
+        self.quarter_turns = np.array(['edge' in p for p in pack.params], bool)
         self._voxelizer: PatchVoxelizer | None = None  # made where the samples are drawn
 
     def __getstate__(self) -> dict[str, Any]:
@@ -70,6 +76,8 @@ class AugmentedVolumes(Dataset):
         rng = np.random.default_rng(np.random.SeedSequence(
             [self.seed, int(epoch) + 1, int(scene), int(copy)]))  # epoch -1 (cache) -> 0
         yaw = float(rng.uniform(0.0, 2.0 * math.pi)) if self.yaw else 0.0
+        if self.quarter_turns[scene]:
+            yaw = 0.5 * math.pi * (round(yaw / (0.5 * math.pi)) % 4)
         dz = float(rng.uniform(-self.z_shift, self.z_shift)) if self.z_shift > 0 else 0.0
         cuts: list[tuple[float, float]] = []
         if self.edge_drop > 0 and rng.uniform() < self.edge_drop:
