@@ -332,15 +332,21 @@ def test_a_scene_at_the_tiles_edge_turns_by_quarter_turns_only():
     pack = ScenePack.from_scenes(toy_scenes(4, seed=9))
     plain = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
     pack.params[1]['edge'] = {'side': 0, 'along': 0.1, 'gap': 0.02, 'reach': 0.1, 'yaw': 0.0}
+    straddling = {'dataset': 'synth3', 'obstacle': {'model': 'log'}, 'label': 0}
+    pack.params[2].update(straddling, inside=False)
+    pack.params[3].update(straddling, inside=True)
     ds = AugmentedVolumes(pack, MapConfig(), TileConfig(), seed=0)
+    assert ds.quarter_turns.tolist() == [False, True, True, False]
     quarter = 0.5 * np.pi
     for e in range(3):
         for c in range(8):
-            assert ds.draw(e, 0, c) == plain.draw(e, 0, c)
-            (yaw, dz, cuts), (yaw0, dz0, cuts0) = ds.draw(e, 1, c), plain.draw(e, 1, c)
-            assert (dz, cuts) == (dz0, cuts0)
-            assert yaw in (0.0, quarter, 2 * quarter, 3 * quarter)
-            assert min(abs(yaw - yaw0), 2 * np.pi - abs(yaw - yaw0)) <= quarter / 2 + 1e-12
+            for scene in (0, 3):
+                assert ds.draw(e, scene, c) == plain.draw(e, scene, c)
+            for scene in (1, 2):
+                (yaw, dz, cuts), (yaw0, dz0, cuts0) = ds.draw(e, scene, c), plain.draw(e, scene, c)
+                assert (dz, cuts) == (dz0, cuts0)
+                assert yaw in (0.0, quarter, 2 * quarter, 3 * quarter)
+                assert min(abs(yaw - yaw0), 2 * np.pi - abs(yaw - yaw0)) <= quarter / 2 + 1e-12
 
 
 def test_edge_drop_cuts_only_the_context():
