@@ -772,7 +772,7 @@ def simulate(
              'no draw with the default one.')] = None,
     edge: Annotated[float, typer.Option(
         help='synth3: the share of twin pairs (0-1) whose obstacle stands at the tile\'s edge: '
-             '5-30 cm in in the unsafe scene, 2-30 cm beyond it in the safe one (an obstacle '
+             '5-30 cm in in the unsafe scene, 15-30 cm beyond it in the safe one (an obstacle '
              'in the next tile); such a dataset shares no draw with the default one.')] = 0.0,
 ) -> None:
     from landing_zone.engines import check_engine

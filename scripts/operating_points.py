@@ -9,12 +9,12 @@ the obstacle tiles passed at the threshold that keeps a given share of the safe 
 same for every model: a ranking, not a calibration). A source is a score file of
 ``landing-zone evaluate --scores`` or ``scripts/ood_families.py --scores`` (every method in
 it), or a ``scripts/guard_eval.py`` WORKDIR (its tiles' final P(safe), net + guard + OOD, all
-conditions pooled). With ``--edge DIR`` (a ``simulate --dataset synth3 --edge`` directory, the
-one the score files were made on) the edge pairs are also split by how far beyond the edge the
-safe scene's obstacle stands and how far in the unsafe one's reaches::
+conditions pooled). With ``--edge DIR SCORES...`` (a ``simulate --dataset synth3 --edge``
+directory and score files made on it) those scores' edge pairs are also split by how far
+beyond the edge the safe scene's obstacle stands and how far in the unsafe one's reaches::
 
     python scripts/operating_points.py runs/eval/a.scores.json runs/eval/b.scores.json \\
-        [--edge data/edge_test] [--keep 0.5 0.85]
+        [--edge data/edge_test runs/eval/a.scores.json] [--keep 0.5 0.85]
     python scripts/operating_points.py runs/ge_shipped runs/ge_edge --keep 0.95 0.9
 """
 from __future__ import annotations
@@ -56,7 +56,8 @@ def main() -> int:
     ap.add_argument('sources', type=Path, nargs='+')
     ap.add_argument('--keep', type=float, nargs='+', default=[0.5, 0.85],
                     help='shares of the safe tiles kept (judged at or above the threshold)')
-    ap.add_argument('--edge', type=Path, default=None, help='the synth3 --edge directory')
+    ap.add_argument('--edge', type=Path, nargs='+', default=None, metavar='DIR SCORES',
+                    help='a synth3 --edge directory, then score files made on it')
     args = ap.parse_args()
     print('| source | method | AUC | ECE | obstacle >= 0.5 / >= 0.9 | safe flagged | '
           'safe >= 0.9 | '
@@ -79,11 +80,20 @@ def main() -> int:
                   f'{pct(f["unsafe_ge_0.5"])} / {pct(f["unsafe_ge_0.9"])} | '
                   f'{pct(f["safe_lt_0.5"])} | {pct(float(np.mean(safe >= 0.9)))} | '
                   + ' | '.join(pct(m) for m in matched) + ' |')
-            if args.edge is not None and scenes is not None:
-                edge_rows.append((src.name, name, p, y, scenes))
+    edge_dir, edge_files = (args.edge[0], args.edge[1:]) if args.edge else (None, [])
+    for src in edge_files:
+        try:
+            methods, y, scenes = sources(src)
+        except (OSError, ValueError, KeyError) as err:
+            print(f'operating_points: {src}: {err}', file=sys.stderr)
+            return 2
+        if scenes is None:
+            print(f'operating_points: {src}: not a score file', file=sys.stderr)
+            return 2
+        edge_rows += [(src.name, name, p, y, scenes) for name, p in methods.items()]
     if edge_rows:
         from landing_zone.sim.shards import SceneDataset
-        ds = SceneDataset(args.edge, 'test')
+        ds = SceneDataset(edge_dir, 'test')
         plans = {}
         print('\n| source | method | '
               + ' | '.join(f'safe flagged, {a * 100:.0f}-{b * 100:.0f} cm beyond'
@@ -96,7 +106,7 @@ def main() -> int:
                 if i not in plans:
                     plans[i] = ds[i].params.get('edge')
             if any(plans[i] is None for i in scenes):
-                print(f'operating_points: {args.edge} is not a synth3 --edge dataset',
+                print(f'operating_points: {edge_dir} is not a synth3 --edge dataset',
                       file=sys.stderr)
                 return 2
             gap = np.array([plans[i]['gap'] for i in scenes])

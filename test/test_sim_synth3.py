@@ -382,6 +382,13 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
     with pytest.raises(DatasetError):
         simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2,
                          progress=False, edge=0.5)
+    # nor with other ranges (a dataset made before they changed keeps its own)
+    meta = json.loads((root / 'meta.json').read_text())
+    meta['edge']['gap'] = [0.02, 0.3]
+    (root / 'meta.json').write_text(json.dumps(meta))
+    with pytest.raises(DatasetError):
+        simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2,
+                         progress=False, edge=1.0)
     with pytest.raises(SimulationError, match='--edge must be a share'):
         scene_plan(0, 0, None, 1.5)
     with pytest.raises(SimulationError, match='--edge is a synth3 option'):

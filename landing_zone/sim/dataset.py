@@ -19,6 +19,7 @@ finish, and a rerun with the same arguments skips the shards already written.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -95,7 +96,8 @@ def _plan_key(meta: dict[str, Any]) -> tuple:
     return (meta.get('format_version'), meta.get('dataset'), meta.get('seed'),
             meta.get('split'), meta.get('n_scenes'), meta.get('shard_size'),
             tuple(s['first_index'] for s in meta.get('shards', [])),
-            tuple(meta.get('obstacle_families') or ()), (meta.get('edge') or {}).get('share'))
+            tuple(meta.get('obstacle_families') or ()),
+            json.dumps(meta.get('edge'), sort_keys=True))  # (its share and ranges)
 
 
 def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = None,

@@ -33,9 +33,12 @@ default one.
 **Obstacles at the tile's edge** (``edge``, ``landing-zone simulate --dataset synth3 --edge
 0.5``): in that share of the pairs both scenes hold the obstacle at one edge of the tile, the same
 instance turned the same way: in the unsafe scene its part standing 10 cm or more above the
-ground (its upper half, if lower) reaches 5-30 cm into the tile; in the safe one the whole of it
-stands 2-30 cm beyond the edge, where the network's context still sees it (an obstacle in the
-next tile, as on every site). Elsewhere a safe scene holds no obstacle and an unsafe one's
+ground (its upper half, if lower) reaches 5-30 cm into the tile (:data:`EDGE_REACH`); in the
+safe one the whole of it stands 15-30 cm beyond the edge (:data:`EDGE_GAP`), where the
+network's 30 cm of context still sees it (an obstacle in the next tile, as on every site).
+Closer than 15 cm the 10 cm pooled input barely tells beyond from in, and safe scenes there
+taught the net to hedge on every tile (``docs/EXPERIMENTS.md``, "obstacles at the tile's
+edge"). Elsewhere a safe scene holds no obstacle and an unsafe one's
 obstacle reaches at least half its radius in, so without these pairs the net never learns where
 a neighbour's obstacle ends. Such a dataset records the share in ``meta.json`` and mixes it into
 every seed, as other ``families`` are.
@@ -70,7 +73,7 @@ __all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_fam
 SYNTH3_CODE = 3  # the dataset's word in every seed
 _PLAN = 0x91A4  # the plan's word
 _EDGE = 0xED6E  # the word of a dataset with obstacles at the tile's edge
-EDGE_GAP = (0.02, 0.3)  # [m] a safe scene's obstacle stands this far beyond the tile's edge
+EDGE_GAP = (0.15, 0.3)  # [m] a safe scene's obstacle stands this far beyond the tile's edge
 EDGE_REACH = (0.05, 0.3)  # [m] an unsafe one's reaches this far in
 _EDGE_TALL = 0.10  # [m] what counts as reaching in: the part this high above the ground ...
 TEST_FRACTION = 0.25
