@@ -42,9 +42,10 @@ class AugmentedVolumes(Dataset):
 
     A scene whose obstacle stands at the tile's edge (:func:`at_the_edge`) turns by a quarter
     turn only (the yaw drawn, rounded): any other yaw turns the square tile under it, which
-    would bring a neighbour's obstacle 2 cm beyond the edge into a safe tile, or take one
-    reaching in out of an unsafe one, and teach the wrong label. (Uniform yaws took the standing
-    part of 6 % of synth3's straddling obstacles wholly out of the tile, still labelled unsafe.)
+    would bring a neighbour's obstacle standing just beyond the edge into a safe tile, or take
+    one reaching in out of an unsafe one, and teach the wrong label. (Uniform yaws took the
+    standing part of 6 % of synth3's straddling obstacles wholly out of the tile, still labelled
+    unsafe.)
     """
 
     def __init__(self, pack: ScenePack, map_cfg: MapConfig, tile_cfg: TileConfig, seed: int,
