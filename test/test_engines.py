@@ -95,7 +95,7 @@ def _shard_killing_itself_once(task):
     file beside the dataset says it already died once)."""
     from landing_zone.sim import dataset
 
-    out, _, _, k, _, _ = task
+    out, _, _, k, *_ = task
     marker = Path(out).parent / f'{Path(out).name}.killed-{k}'
     if k == 1 and not marker.exists():
         marker.touch()

@@ -29,7 +29,7 @@ from landing_zone.sim.mesh import OBSTACLE, Mesh
 from landing_zone.sim.terrain import Terrain
 
 __all__ = ['KINDS', 'ObstacleModel', 'Obstacle', 'library', 'models', 'get_model', 'place',
-           'MAX_HEIGHT', 'MIN_HEIGHT', 'MAX_ACROSS']
+           'at_edge', 'MAX_HEIGHT', 'MIN_HEIGHT', 'MAX_ACROSS']
 
 KINDS = ('box', 'rock', 'tire', 'cinder_block')
 MIN_HEIGHT = 0.15  # [m] synth2 obstacles are at least this high ...
@@ -271,3 +271,27 @@ def place(model: ObstacleModel, x: float, y: float, yaw: float, terrain: Terrain
     pts = np.concatenate([fp, 0.5 * (fp + np.roll(fp, -1, axis=0)), [[x, y]]])
     z = float(np.min(terrain.height(pts[:, 0], pts[:, 1]))) - model.embed
     return Obstacle(model, float(x), float(y), z, float(yaw))
+
+
+def at_edge(model: ObstacleModel, yaw: float, side: int, along: float, half: float,
+            reach: float | None = None, gap: float | None = None, tall: float = 0.10
+            ) -> tuple[float, float]:
+    """Where ``model`` turned by ``yaw`` stands at one edge of the square [-half, half]^2
+    (``side`` 0, 1, 2, 3: the +x, +y, -x, -y edge): with ``reach``, its part standing ``tall``
+    above its base (its top half, if lower) reaches that far into the square; with ``gap``, its
+    whole footprint stands that far beyond the edge. In both, that part's innermost vertex lies
+    ``along`` the edge (the coordinate across the edge's normal). Returns its (x, y).
+    """
+    if (reach is None) == (gap is None):
+        raise SimulationError('at_edge: give either reach or gap')
+    v = Obstacle(model, 0.0, 0.0, 0.0, yaw).vertices()
+    a = 0.5 * math.pi * side
+    out = np.array([math.cos(a), math.sin(a)])  # the edge's outward normal
+    lateral = np.array([-out[1], out[0]])
+    depth = v[:, :2] @ out
+    above = v[:, 2] - model.embed
+    standing = np.flatnonzero(above >= min(tall, 0.5 * float(above.max())))
+    k = standing[np.argmin(depth[standing])]
+    n = half - reach - depth[k] if reach is not None else half + gap - depth.min()
+    xy = n * out + (along - v[k, :2] @ lateral) * lateral
+    return float(xy[0]), float(xy[1])

@@ -386,27 +386,6 @@ def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: 
                        grade=grade)
 
 
-def _edge_xy(model: Any, edge: dict[str, Any], reaching: bool, tile_size: float
-             ) -> tuple[float, float]:
-    """Where a pair's obstacle stands at the tile's edge (a plan's ``edge``): its part standing
-    :data:`_EDGE_TALL` above the ground (its upper half, if lower) ``reach`` into the tile when
-    ``reaching``, else its whole footprint ``gap`` beyond the edge; in both, that part's innermost
-    vertex ``along`` the edge."""
-    from landing_zone.sim.obstacles import Obstacle
-    v = Obstacle(model, 0.0, 0.0, 0.0, edge['yaw']).vertices()
-    a = 0.5 * math.pi * edge['side']
-    out = np.array([math.cos(a), math.sin(a)])  # the edge's outward normal
-    lateral = np.array([-out[1], out[0]])
-    depth = v[:, :2] @ out
-    above = v[:, 2] - model.embed
-    tall = np.flatnonzero(above >= min(_EDGE_TALL, 0.5 * float(above.max())))
-    k = tall[np.argmin(depth[tall])]
-    half = 0.5 * tile_size
-    n = half - edge['reach'] - depth[k] if reaching else half + edge['gap'] - depth.min()
-    xy = n * out + (edge['along'] - v[k, :2] @ lateral) * lateral
-    return float(xy[0]), float(xy[1])
-
-
 def generate_scene(index: int, seed: int = 0, threads: int = 1,
                    families: Sequence[str] | None = None, edge: float = 0.0) -> dict[str, Any]:
     """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own;
@@ -417,7 +396,7 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     from landing_zone.sim.families import instance, keep_visible
     from landing_zone.sim.flyover import flyover_scan
     from landing_zone.sim.mesh import Mesh
-    from landing_zone.sim.obstacles import place
+    from landing_zone.sim.obstacles import at_edge, place
     from landing_zone.sim.scene import PatchConfig, World
     from landing_zone.sim.sensor import hover_scan
     from landing_zone.sim.terrain import SlopedTerrain, TerrainConfig
@@ -450,9 +429,12 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     pad = 2.0 * tcfg.spacing
     terrain = SlopedTerrain(tcfg, rng, lo - pad, hi + pad, tp['slope'], tp['azimuth'])
     obstacle = None
-    if 'edge' in plan:  # both scenes of the pair: beyond the edge, or reaching in
-        x, y = _edge_xy(model, plan['edge'], plan['label'] == 0, patch.tile_size)
-        obstacle = keep_visible(place(model, x, y, plan['edge']['yaw'], terrain), terrain)
+    if 'edge' in plan:  # both scenes of the pair: reaching in, or beyond the edge
+        e, unsafe = plan['edge'], plan['label'] == 0
+        x, y = at_edge(model, e['yaw'], e['side'], e['along'], 0.5 * patch.tile_size,
+                       reach=e['reach'] if unsafe else None, gap=None if unsafe else e['gap'],
+                       tall=_EDGE_TALL)
+        obstacle = keep_visible(place(model, x, y, e['yaw'], terrain), terrain)
     elif plan['label'] == 0:
         # Inside the tile for any yaw, or straddling its edge with half its radius inside (as
         # synth2 places them).
