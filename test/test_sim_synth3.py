@@ -391,7 +391,7 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
                          progress=False, edge=1.0)
     from landing_zone.sim.obstacles import at_edge, get_model
     with pytest.raises(SimulationError, match='either reach or gap'):
-        at_edge(get_model('box'), 0.0, 0, 0.0, 0.5)
+        at_edge(get_model('box'), 0.0, 0, 0.0, 0.5, 0.1)
     with pytest.raises(SimulationError, match='--edge must be a share'):
         scene_plan(0, 0, None, 1.5)
     with pytest.raises(SimulationError, match='--edge is a synth3 option'):

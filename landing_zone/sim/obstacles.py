@@ -274,7 +274,7 @@ def place(model: ObstacleModel, x: float, y: float, yaw: float, terrain: Terrain
 
 
 def at_edge(model: ObstacleModel, yaw: float, side: int, along: float, half: float,
-            reach: float | None = None, gap: float | None = None, tall: float = 0.10
+            tall: float, reach: float | None = None, gap: float | None = None
             ) -> tuple[float, float]:
     """Where ``model`` turned by ``yaw`` stands at one edge of the square [-half, half]^2
     (``side`` 0, 1, 2, 3: the +x, +y, -x, -y edge): with ``reach``, its part standing ``tall``

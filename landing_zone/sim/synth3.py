@@ -432,8 +432,8 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     if 'edge' in plan:  # both scenes of the pair: reaching in, or beyond the edge
         e, unsafe = plan['edge'], plan['label'] == 0
         x, y = at_edge(model, e['yaw'], e['side'], e['along'], 0.5 * patch.tile_size,
-                       reach=e['reach'] if unsafe else None, gap=None if unsafe else e['gap'],
-                       tall=_EDGE_TALL)
+                       _EDGE_TALL, reach=e['reach'] if unsafe else None,
+                       gap=None if unsafe else e['gap'])
         obstacle = keep_visible(place(model, x, y, e['yaw'], terrain), terrain)
     elif plan['label'] == 0:
         # Inside the tile for any yaw, or straddling its edge with half its radius inside (as
