@@ -46,6 +46,15 @@ def sources(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, list[int] | 
             np.asarray(doc['labels']), doc.get('scenes'))
 
 
+def read(src: Path) -> tuple[dict[str, np.ndarray], np.ndarray, list[int] | None] | None:
+    """:func:`sources`, or None with one line on stderr when ``src`` cannot be read."""
+    try:
+        return sources(src)
+    except (OSError, ValueError, KeyError) as err:
+        print(f'operating_points: {src}: {err}', file=sys.stderr)
+        return None
+
+
 def pct(v: float | None) -> str:
     return 'n/a' if v is None else f'{100 * v:.1f} %'
 
@@ -65,11 +74,10 @@ def main() -> int:
     print('|---|---|' + '---:|' * (5 + len(args.keep)))
     edge_rows = []
     for src in args.sources:
-        try:
-            methods, y, scenes = sources(src)
-        except (OSError, ValueError, KeyError) as err:
-            print(f'operating_points: {src}: {err}', file=sys.stderr)
+        got = read(src)
+        if got is None:
             return 2
+        methods, y, _ = got
         for name, p in methods.items():
             ok = np.isfinite(p)
             p_, y_ = p[ok], y[ok]
@@ -82,11 +90,10 @@ def main() -> int:
                   + ' | '.join(pct(m) for m in matched) + ' |')
     edge_dir, edge_files = (args.edge[0], args.edge[1:]) if args.edge else (None, [])
     for src in edge_files:
-        try:
-            methods, y, scenes = sources(src)
-        except (OSError, ValueError, KeyError) as err:
-            print(f'operating_points: {src}: {err}', file=sys.stderr)
+        got = read(src)
+        if got is None:
             return 2
+        methods, y, scenes = got
         if scenes is None:
             print(f'operating_points: {src}: not a score file', file=sys.stderr)
             return 2
@@ -104,7 +111,7 @@ def main() -> int:
         for src, name, p, y, scenes in edge_rows:
             for i in scenes:
                 if i not in plans:
-                    plans[i] = ds[i].params.get('edge')
+                    plans[i] = ds.params(i).get('edge')
             if any(plans[i] is None for i in scenes):
                 print(f'operating_points: {edge_dir} is not a synth3 --edge dataset',
                       file=sys.stderr)
