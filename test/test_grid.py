@@ -36,8 +36,8 @@ def hand_made() -> Assessment:
     grad[0, 0, 0] = np.tan(np.radians(12.0))
     grad[0, 1] = np.nan
     clearance = np.array([[2.0, np.nan], [2.0, 2.0], [2.0, 2.0]], np.float32)
-    cand = evaluate_candidates(p, conf, origin, SiteConfig(footprint_radius=0.5), 1.0,
-                               GroundGrids(gz, grad, clearance))
+    cand = evaluate_candidates(p, conf, origin, SiteConfig(footprint_radius=0.5, min_p_safe=0.5),
+                               1.0, GroundGrids(gz, grad, clearance))
     return Assessment(frame_id='map', tile_size=1.0, origin=origin, shape=shape, index=index,
                       centers=(index + 0.5) * 1.0, ground_z=gz.ravel(), p_safe=p.ravel(),
                       confidence=conf.ravel(), observed_fraction=np.full(6, 0.5, np.float32),

@@ -35,13 +35,18 @@ def test_footprint_mask_counts_tiles_the_disc_overlaps():
     assert np.array_equal(hit, m)
 
 
-def test_footprint_probability_is_the_product_under_the_disc():
+def test_footprint_probability_is_the_least_tile_probability_under_the_disc():
     rng = np.random.default_rng(0)
     p = rng.uniform(0.6, 1.0, (7, 7))
     c = rng.uniform(0.2, 1.0, (7, 7))
-    ps, cs = site_probabilities(p, c, 1.5, 1.0)
-    assert ps[3, 3] == pytest.approx(np.prod(p[2:5, 2:5]))
+    ps, pm, cs = site_probabilities(p, c, 1.5, 1.0)
+    assert ps[3, 3] == p[2:5, 2:5].min()
+    assert pm[3, 3] == pytest.approx(np.prod(p[2:5, 2:5]) ** (1 / 9))
     assert cs[3, 3] == pytest.approx(c[2:5, 2:5].min())
+    # never above the probability of any one tile under it (no event is likelier than one it
+    # implies), never below the product (what independent tiles would give)
+    inner = (slice(1, 6), slice(1, 6))
+    assert np.all(ps[inner] <= pm[inner]) and np.all(pm[inner] ** 9 <= ps[inner] + 1e-12)
     # footprints reaching past the grid are disqualified
     assert np.isnan(ps[0, 3]) and np.isnan(ps[6, 6])
     assert np.isfinite(ps[1:6, 1:6]).all()
@@ -56,7 +61,7 @@ def test_best_site_is_the_clear_patch():
     best = sites[0]
     assert best.index == (7 - 6, 3 - 5)
     assert (best.x, best.y) == (1.5, -1.5)
-    assert best.p_safe == pytest.approx(0.99 ** 9)
+    assert best.p_safe == pytest.approx(0.99)
     assert sites == sorted(sites, key=lambda s: -s.p_safe)
 
 
@@ -64,8 +69,8 @@ def test_unknown_tile_disqualifies_its_footprints():
     p = np.full((9, 9), 0.95)
     p[4, 4] = np.nan
     conf = np.ones_like(p)
-    ps, _ = site_probabilities(p, conf, 1.5, 1.0)
-    assert np.isnan(ps[3:6, 3:6]).all()
+    ps, pm, _ = site_probabilities(p, conf, 1.5, 1.0)
+    assert np.isnan(ps[3:6, 3:6]).all() and np.isnan(pm[3:6, 3:6]).all()
     assert np.isfinite(ps[1, 1])
     sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, top_k=50, min_p_safe=0.0),
                        min_separation=0.0)
@@ -80,7 +85,7 @@ def test_an_unknown_patch_is_never_preferred_to_a_poor_known_one():
     conf = np.ones_like(p)
     sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, top_k=5, min_p_safe=0.0))
     assert [s.index for s in sites] == [(2, 2)]
-    assert sites[0].p_safe == pytest.approx(0.6 ** 9)
+    assert sites[0].p_safe == pytest.approx(0.6)
 
 
 def test_non_maximum_suppression_keeps_sites_apart():
@@ -93,7 +98,9 @@ def test_non_maximum_suppression_keeps_sites_apart():
     xy = np.array([[s.x, s.y] for s in sites])
     d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
     assert d[np.triu_indices(5, 1)].min() >= 3.0
-    # the best ones contain the excellent tile under their footprints
+    # every footprint's least tile is 0.9: the tie goes to those whose other tiles are surer,
+    # the footprints over the excellent tile
+    assert all(s.p_safe == pytest.approx(0.9) for s in sites)
     assert max(abs(sites[0].index[0] - 10), abs(sites[0].index[1] - 10)) <= 1
 
 
@@ -101,16 +108,34 @@ def test_min_p_safe_and_zero_probability():
     p = np.full((6, 6), 0.9)
     p[2, 2] = 0.0
     conf = np.full_like(p, 0.5)
-    ps, cs = site_probabilities(p, conf, 1.5, 1.0)
-    assert ps[2, 2] == 0.0 and ps[3, 3] == 0.0
+    ps, pm, cs = site_probabilities(p, conf, 1.5, 1.0)
+    assert ps[2, 2] == 0.0 and ps[3, 3] == 0.0 and pm[3, 3] == 0.0
     assert cs[4, 4] == pytest.approx(0.5)
     sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, 10, min_p_safe=0.5),
                        min_separation=0.0)
-    assert sites == []  # every footprint inside the grid covers the unsafe tile
+    # the footprints inside the grid clear of the unsafe tile, at the others' 0.9
+    assert sorted(s.index for s in sites) == [(i, j) for i in range(1, 5) for j in range(1, 5)
+                                              if max(abs(i - 2), abs(j - 2)) >= 2]
+    assert all(s.p_safe == pytest.approx(0.9) for s in sites)
     sites = find_sites(p, conf, origin=(0, 0), config=SiteConfig(1.5, 10, min_p_safe=0.0),
                        ground_z=np.full_like(p, 0.25))
     assert all(s.z == 0.25 for s in sites)
     assert sites[-1].p_safe == 0.0
+
+
+def test_one_doubtful_tile_bounds_its_footprints():
+    # sure ground but one tile the net doubts: every footprint over it reads that tile's P, the
+    # threshold leaves them out for the obstacle, and the footprints clear of it are listed
+    p = np.full((9, 9), 0.97)
+    p[4, 4] = 0.3
+    conf = np.ones_like(p)
+    cfg = SiteConfig(1.5, top_k=50, min_p_safe=0.8)
+    ps, _, _ = site_probabilities(p, conf, 1.5, 1.0)
+    assert np.all(ps[3:6, 3:6] == 0.3)
+    sites = find_sites(p, conf, origin=(0, 0), config=cfg, min_separation=0.0)
+    assert len(sites) == 7 * 7 - 9
+    assert all(max(abs(s.index[0] - 4), abs(s.index[1] - 4)) >= 2 for s in sites)
+    assert all(s.p_safe == pytest.approx(0.97) for s in sites)
 
 
 def test_bad_arguments_raise_config_errors():
