@@ -8,25 +8,17 @@ The candidate's probability is the least of its tiles':
     P(site safe) = min over tiles under the footprint of p_safe(tile).
 
 It is the most any estimate of P(every one of those tiles is safe) can coherently say (no
-event is likelier than one it implies: the Frechet bound), and it is that probability when the
-tiles' errors move together. They do: neighbouring tiles share returns, padding context, the
-vegetation and often the same obstacle. Measured on fresh simulated flights (64 flights of 16
-conditions, vegetation, scan patterns and obstacles outside every training family, 6,280
-footprints of 3 x 3 tiles; docs/EXPERIMENTS.md, "What a landing site's P(safe) means";
-``scripts/site_probability.py``): the product over the tiles, which assumes independent tiles,
-read 0.5-0.8 on footprints of which 99-100 % were clear, and never reached 0.8 (calibration
-error 0.25). Raised to the power that fits best (0.13: nine tiles worth about one independent
-one) it is calibrated on average but reads above the least tile's P wherever one tile is
-doubtful (one at 0.3 among sure ones: 0.83), which no estimate may. The least P is conservative
-there in every bin (calibration error 0.12), because the tiles' calibration is conservative on
-easy ground (README, "How far to trust it"), and ``SiteConfig.min_p_safe`` 0.8 on it lists what
-0.5 on the product did (61 and 60 % of the clear footprints, none over an obstacle).
+event is likelier than one it implies), and it is that probability when the tiles' errors move
+together, which they do: neighbouring tiles share returns, padding context, vegetation and
+often one obstacle. On fresh simulated flights the product over the tiles (independent tiles)
+read 0.5-0.8 on footprints 99-100 % clear; the least P is conservative in every bin, and
+``SiteConfig.min_p_safe`` 0.8 on it lists the places 0.5 on the product did (README, "Landing
+sites a planner can fly to"; ``scripts/site_probability.py``).
 
-Ties, common because one tile is often the least under several footprints, go to the footprint
-whose other tiles are surer: ``Candidates.p_mean``, the geometric mean of the tiles'
-probabilities, which also ranks footprints on its own about as well (AUC 0.994 against 0.993).
-A tile not observed enough to be judged (p_safe NaN), or outside the assessed grid, disqualifies
-every footprint that covers it: unknown ground is never assumed safe.
+Ties (one tile is often the least under several footprints) go to the footprint whose other
+tiles are surer: ``Candidates.p_mean``, their geometric mean. A tile not observed enough to be
+judged (p_safe NaN), or off the assessed grid, disqualifies every footprint over it: unknown
+ground is never assumed safe.
 
 With the tiles' ground planes (:mod:`landing_zone.judging.ground`) every candidate also gets
 the geometry a planner needs, over the tiles under its footprint:
@@ -147,8 +139,8 @@ class Candidates:
         tile_size: tile edge [m].
         p_safe: P(all tiles under the footprint safe), the least tile probability under it;
             NaN where any is unknown.
-        p_mean: the geometric mean of the tile probabilities under it (the tie-break of the
-            ranking); NaN likewise.
+        p_mean: the geometric mean of the tile probabilities under it (the ranking's
+            tie-break); NaN likewise.
         confidence: the lowest confidence under the footprint; NaN likewise.
         slope_deg, step, clearance, normal: the footprint's geometry (module docstring) over
             the tiles under it that have a ground plane; NaN where none has.
@@ -230,9 +222,8 @@ def site_probabilities(p_safe: np.ndarray, confidence: np.ndarray, radius: float
         tile_size: tile edge [m].
 
     Returns:
-        ``(p, p_mean, c)``, each (X, Y) float64: the least p_safe under each footprint (module
-        docstring), the geometric mean of the p_safe under it and the lowest confidence under
-        it; NaN where any tile under the footprint is unknown or falls outside the grid.
+        ``(p, p_mean, c)``, (X, Y) float64 each: the least, the geometric mean and the lowest
+        confidence under each footprint; NaN where a tile under it is unknown or off the grid.
     """
     p = np.asarray(p_safe, np.float64)
     conf = np.asarray(confidence, np.float64)
@@ -244,15 +235,13 @@ def site_probabilities(p_safe: np.ndarray, confidence: np.ndarray, radius: float
     mask = footprint_mask(radius, tile_size)
     unknown = ~np.isfinite(p)
     known = np.clip(np.where(unknown, 1.0, p), 0.0, 1.0)
-    p_min = ndimage.grey_erosion(known, footprint=mask, mode='constant', cval=1.0)
-    # Mean of logs, not a product, so a 100-tile footprint does not underflow; log(0) is -inf
-    # and stays -inf through the sum (a surely unsafe tile).
+    p_min = _footprint_min(known, radius, tile_size)
+    # a mean of logs does not underflow on a 100-tile footprint; log(0) = -inf stays -inf
     with np.errstate(divide='ignore'):
         log_sum = ndimage.correlate(np.log(known), mask.astype(np.float64), mode='constant',
                                     cval=0.0)
-    # outside the grid counts as unknown
     n_unknown = ndimage.correlate(unknown.astype(np.int32), mask.astype(np.int32),
-                                  mode='constant', cval=1)
+                                  mode='constant', cval=1)  # off the grid counts as unknown
     conf_min = ndimage.grey_erosion(np.where(unknown, 0.0, conf), footprint=mask,
                                     mode='constant', cval=0.0)
     bad = n_unknown > 0
@@ -391,11 +380,9 @@ def evaluate_candidates(p_safe: np.ndarray, confidence: np.ndarray, origin: tupl
     shape = p.shape
     # the known tiles alone may already make the footprint unsafe
     pk = np.asarray(p_safe, np.float64)
-    known_p = ndimage.grey_erosion(np.where(np.isfinite(pk), pk, 1.0),
-                                   footprint=footprint_mask(cfg.footprint_radius, tile_size),
-                                   mode='constant', cval=1.0) if pk.size else np.zeros(shape)
     reasons = np.zeros(shape, np.uint8)
-    reasons[known_p < cfg.min_p_safe] |= OBSTACLE
+    with np.errstate(invalid='ignore'):
+        reasons[_footprint_min(pk, cfg.footprint_radius, tile_size) < cfg.min_p_safe] |= OBSTACLE
     reasons[~np.isfinite(p)] |= UNKNOWN
     if ground is not None and pk.size:
         slope, step, clearance, normal, complete = site_geometry(
