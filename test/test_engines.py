@@ -186,8 +186,14 @@ def test_evaluate_flights_same_figures_across_engines(ray_cluster, flights, mode
     assert pooled['obstacle_tiles'] <= sum(unsafe) and pooled['obstacle_tiles'] > 0
     assert pooled['unjudged'] == pytest.approx(1 - pooled['tiles_judged'] / 72)
     for f in local['flights'] + [pooled]:
-        for key in ('auc', 'ece', 'obstacle_passed'):
+        for key in ('auc', 'ece', 'obstacle_passed', 'site_ece'):
             assert f[key] is None or 0.0 <= f[key] <= 1.0
+        assert 0 <= f['sites_over_obstacle'] <= f['sites_listed']
+        assert 0 <= f['footprints_unsafe'] <= f['footprints']
+    # the sites' figures pool by sums (footprints of 3 x 3 tiles centred inside the 6 x 6 m site)
+    for key in ('sites_listed', 'sites_over_obstacle', 'footprints', 'footprints_unsafe'):
+        assert pooled[key] == sum(f[key] for f in local['flights'])
+    assert 0 < pooled['footprints'] <= 2 * 16
     assert [Path(f['bag']).name for f in local['flights']] == ['site1.mcap', 'site2.mcap']
 
 

@@ -138,6 +138,22 @@ def test_one_doubtful_tile_bounds_its_footprints():
     assert all(s.p_safe == pytest.approx(0.97) for s in sites)
 
 
+def test_footprint_truth_is_every_tile_under_it_labelled_safe():
+    from landing_zone.learn.flights import footprint_truth
+
+    truth = np.ones((6, 6), np.int8)
+    truth[1, 1] = 0   # an obstacle tile
+    truth[4, 4] = -1  # a tile without a label
+    ft = footprint_truth(truth, 1.5, 1.0)
+    # off the grid counts as unlabelled; an unsafe tile under a footprint decides it
+    assert ft[0, 0] == 0 and ft[0, 5] == -1 and ft[5, 0] == -1
+    for i in range(1, 5):
+        for j in range(1, 5):
+            near = (max(abs(i - 1), abs(j - 1)) <= 1, max(abs(i - 4), abs(j - 4)) <= 1)
+            assert ft[i, j] == (0 if near[0] else -1 if near[1] else 1), (i, j)
+    assert (ft[1:5, 1:5] == 1).sum() == 16 - 4 - 4
+
+
 def test_bad_arguments_raise_config_errors():
     with pytest.raises(ConfigError, match='footprint radius'):
         footprint_mask(0.0, 1.0)

@@ -15,6 +15,15 @@ every flight's labelled tiles:
 * ``unjudged``: the share of labelled tiles left without a P(safe) (not observed enough, or
   outside the map).
 
+And the landing sites a planner would have been given (:mod:`landing_zone.judging.sites`), a
+footprint's truth being "every tile under it labelled safe" (unsafe: any tile under it labelled
+unsafe; footprints with an unlabelled tile and no unsafe one are not scored):
+
+* ``sites_listed``, ``sites_over_obstacle``: the sites the final assessment lists, and how many
+  of them cover a tile labelled unsafe (the error a planner lands on);
+* ``site_ece``: expected calibration error of every judged footprint's P(safe) (centred on
+  each tile, listed or not) against its truth; ``footprints``, ``footprints_unsafe``.
+
 Pooled figures are computed on the tiles of all flights together, not averaged over flights.
 Flights are independent tasks (:mod:`landing_zone.engines`): a process pool here or Ray tasks on
 a cluster; replay is deterministic, so the figures do not depend on the engine, the number of
@@ -34,11 +43,11 @@ import numpy as np
 from landing_zone.engines import check_engine, run_tasks
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['THRESHOLD', 'FIGURES', 'flight_task', 'score_flight', 'pooled_figures',
-           'evaluate_flights', 'markdown_flights']
+__all__ = ['THRESHOLD', 'FIGURES', 'flight_task', 'score_flight', 'footprint_truth',
+           'pooled_figures', 'evaluate_flights', 'markdown_flights']
 
 THRESHOLD = 0.5  # P(safe) from which an obstacle tile counts as passed (docs/INTERFACES.md §2)
-FIGURES = ('auc', 'ece', 'obstacle_passed', 'unjudged')
+FIGURES = ('auc', 'ece', 'obstacle_passed', 'unjudged', 'site_ece', 'sites_over_obstacle')
 
 
 def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
@@ -58,6 +67,30 @@ def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
         'obstacle_passed': float((p[unsafe] >= THRESHOLD).mean()) if unsafe.any() else None,
         'unjudged': 1.0 - len(p) / labelled if labelled else None,
     }
+
+
+def _site_figures(fp: np.ndarray, fy: np.ndarray, listed: int, over: int) -> dict[str, Any]:
+    """The site figures: footprints' P(safe) ``fp`` with truth ``fy``, sites listed and how
+    many of them cover an obstacle."""
+    from landing_zone.learn.calibration import expected_calibration_error
+
+    return {'sites_listed': int(listed), 'sites_over_obstacle': int(over),
+            'footprints': int(len(fp)), 'footprints_unsafe': int((fy == 0).sum()),
+            'site_ece': expected_calibration_error(fp, fy) if len(fp) else None}
+
+
+def footprint_truth(truth: np.ndarray, radius: float, tile_size: float) -> np.ndarray:
+    """Per footprint centred on each tile of a (X, Y) truth grid (1 safe, 0 unsafe, -1 not
+    labelled): 1 every tile under it safe, 0 any unsafe, -1 neither (an unlabelled tile, or
+    off the grid)."""
+    from scipy import ndimage
+
+    from landing_zone.judging.sites import footprint_mask
+
+    mask = footprint_mask(radius, tile_size).astype(np.int32)
+    unsafe = ndimage.correlate((truth == 0).astype(np.int32), mask, mode='constant', cval=0)
+    unlabelled = ndimage.correlate((truth < 0).astype(np.int32), mask, mode='constant', cval=1)
+    return np.where(unsafe > 0, 0, np.where(unlabelled > 0, -1, 1)).astype(np.int8)
 
 
 def flight_task(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | None = None,
@@ -107,10 +140,20 @@ def score_flight(task: dict[str, Any]) -> dict[str, Any]:
     judged = (truth >= 0) & np.isfinite(p)
     out = {'bag': task['bag'], 'labels': task['labels']}
     out.update(_figures(p[judged], truth[judged].astype(np.int64), len(labels['tiles'])))
+    # the footprints: truth on the candidates' grid (the tiles' x-major order)
+    fp, fy, over = np.zeros(0), np.zeros(0, np.int8), 0
+    if a.candidates is not None and len(a):
+        ftruth = footprint_truth(a.grid(truth), a.footprint_radius, a.tile_size)
+        scored = (ftruth >= 0) & np.isfinite(a.candidates.p_safe)
+        fp, fy = a.candidates.p_safe[scored], ftruth[scored]
+        origin = np.asarray(a.origin)
+        over = sum(int(ftruth[tuple(np.asarray(s.index) - origin)] == 0) for s in a.sites)
+    out.update(_site_figures(fp, fy, len(a.sites), over))
     out['clouds'] = int(res.stats.get('clouds', 0))
     out['seconds'] = round(time.perf_counter() - t0, 3)
     out['_p'] = p[judged].astype(np.float32)
     out['_y'] = truth[judged].astype(np.int8)
+    out['_fp'], out['_fy'] = fp.astype(np.float32), fy
     return out
 
 
@@ -120,7 +163,13 @@ def pooled_figures(flights: Sequence[dict[str, Any]]) -> dict[str, Any]:
         np.zeros(0)
     y = np.concatenate([np.asarray(f['_y'], np.int64) for f in flights]) if flights else \
         np.zeros(0, np.int64)
-    return _figures(p, y, sum(f['tiles_labelled'] for f in flights))
+    out = _figures(p, y, sum(f['tiles_labelled'] for f in flights))
+    fp = np.concatenate([np.asarray(f['_fp'], np.float64) for f in flights] + [np.zeros(0)])
+    fy = np.concatenate([np.asarray(f['_fy'], np.int64) for f in flights] +
+                        [np.zeros(0, np.int64)])
+    out.update(_site_figures(fp, fy, sum(f['sites_listed'] for f in flights),
+                             sum(f['sites_over_obstacle'] for f in flights)))
+    return out
 
 
 def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'local',
@@ -188,7 +237,8 @@ def markdown_flights(doc: dict[str, Any]) -> str:
         return '-' if v is None else format(v, fmt)
 
     lines = ['| flight | tiles judged | AUC | ECE | obstacle tiles at P(safe) >= 0.5 | '
-             'unjudged |', '|---|---:|---:|---:|---:|---:|']
+             'unjudged | sites listed over an obstacle | site ECE |',
+             '|---|---:|---:|---:|---:|---:|---:|---:|']
     rows = [(Path(f['bag']).name, f) for f in doc['flights']] + [('**pooled**', doc['pooled'])]
     for name, f in rows:
         passed = ('-' if f['obstacle_passed'] is None else
@@ -196,5 +246,6 @@ def markdown_flights(doc: dict[str, Any]) -> str:
                   f'{f["obstacle_tiles"]})')
         lines.append(f'| {name} | {f["tiles_judged"]} of {f["tiles_labelled"]} | '
                      f'{num(f["auc"], ".3f")} | {num(f["ece"], ".3f")} | {passed} | '
-                     f'{num(f["unjudged"], ".1%")} |')
+                     f'{num(f["unjudged"], ".1%")} | {f["sites_over_obstacle"]} of '
+                     f'{f["sites_listed"]} | {num(f["site_ece"], ".3f")} |')
     return '\n'.join(lines) + '\n'
