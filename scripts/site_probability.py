@@ -31,6 +31,7 @@ from scipy.optimize import minimize_scalar
 from sklearn.metrics import roc_auc_score
 
 from landing_zone.judging.sites import footprint_mask
+from landing_zone.learn.flights import footprint_truth
 
 BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9)
@@ -61,7 +62,7 @@ def footprints(workdir: Path, radius: float) -> list[tuple[str, np.ndarray, np.n
         known = np.clip(np.nan_to_num(p, nan=1.0), 1e-12, 1.0)
         log_prod = ndimage.correlate(np.log(known), mask.astype(float), mode='constant')
         log_min = np.log(ndimage.grey_erosion(known, footprint=mask, mode='constant', cval=1.0))
-        truth = ndimage.grey_erosion(safe, footprint=mask, mode='constant', cval=0.0)
+        truth = footprint_truth(safe.astype(np.int8), radius, ts)
         out.append((str(flight['condition']), log_prod[judged], log_min[judged], truth[judged]))
     return out
 

@@ -407,8 +407,7 @@ def evaluate_candidates(p_safe: np.ndarray, confidence: np.ndarray, origin: tupl
         normal[..., 2] = 1.0
     return Candidates(origin=(int(origin[0]), int(origin[1])), tile_size=float(tile_size),
                       p_safe=p, p_mean=p_mean, confidence=c, slope_deg=slope, step=step,
-                      clearance=clearance,
-                      normal=normal, reasons=reasons)
+                      clearance=clearance, normal=normal, reasons=reasons)
 
 
 def normal_quaternion(normal: tuple[float, float, float] | np.ndarray
