@@ -26,11 +26,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 from scipy.optimize import minimize_scalar
 from sklearn.metrics import roc_auc_score
 
-from landing_zone.judging.sites import footprint_mask
+from landing_zone.judging.sites import footprint_mask, site_probabilities
 from landing_zone.learn.flights import footprint_truth
 
 BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
@@ -56,14 +55,14 @@ def footprints(workdir: Path, radius: float) -> list[tuple[str, np.ndarray, np.n
             i, j = ix[t['x']], iy[t['y']]
             p[i, j] = np.nan if t['p_safe'] is None else t['p_safe']
             safe[i, j] = float(t['safe'])
-        mask = footprint_mask(radius, ts)
-        judged = ndimage.correlate(np.isfinite(p).astype(int), mask.astype(int),
-                                   mode='constant', cval=0) == mask.sum()
-        known = np.clip(np.nan_to_num(p, nan=1.0), 1e-12, 1.0)
-        log_prod = ndimage.correlate(np.log(known), mask.astype(float), mode='constant')
-        log_min = np.log(ndimage.grey_erosion(known, footprint=mask, mode='constant', cval=1.0))
+        # the site figures as judging.sites computes them (NaN where a tile is not judged); a
+        # tile's P floored at 1e-12 so that the fitted power sees a finite log product
+        least, mean, _ = site_probabilities(np.clip(p, 1e-12, 1.0), np.ones_like(p), radius, ts)
+        judged = np.isfinite(least)
+        n_tiles = int(footprint_mask(radius, ts).sum())
+        log_prod, log_min = n_tiles * np.log(mean[judged]), np.log(least[judged])
         truth = footprint_truth(safe.astype(np.int8), radius, ts)
-        out.append((str(flight['condition']), log_prod[judged], log_min[judged], truth[judged]))
+        out.append((str(flight['condition']), log_prod, log_min, truth[judged]))
     return out
 
 
