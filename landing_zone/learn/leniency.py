@@ -9,18 +9,20 @@ net already calls surely unsafe its gradient is close to zero, so the margin can
 until the sample crosses.
 
 :class:`LeniencyPenalty` adds, on every obstacle sample of a batch (label 0, whatever training
-source it came from), ``weight * relu(logit - logit_init)^2``, where ``logit_init`` is the
-initial net's logit on the same augmented input. Safe samples are free, so the net can move
-what the site data shows (its vegetation judged safe) but pays for every obstacle it judges
-safer than the initial net did. Squared, so that a small drift costs little and the push stops
-once the net is no more lenient.
+source it came from), ``weight * relu(logit - logit_init)^2``, where ``logit`` and
+``logit_init`` are the trained and the initial net's logits on the same augmented input, both
+in eval mode. Safe samples are free, so the net can move what the site data shows (its
+vegetation judged safe) but pays for every obstacle it judges safer than the initial net did.
+Squared, so that a small drift costs little and the push stops once the net is no more lenient.
 
-The frozen copy runs in training mode with the same dropout masks as the net being trained (the
-random state of the net's forward pass replayed, :meth:`LeniencyPenalty.rng_state`), so the two
-are the same sub-network and the penalty is zero until the weights move. Against the eval-mode
-copy it was not: training-mode logits of edge15 sat 1.36 below its eval-mode logits on thin
-obstacles (std 3.4), so the penalty charged dropout's noise (0.16 per obstacle sample at weight 1
-before any step; docs/EXPERIMENTS.md, session 18).
+Both logits are the eval-mode ones, the function the robot runs: the penalty is zero until the
+weights move and measures their drift alone. The training-mode logits (dropout 0.5 after every
+layer) are no measure of it: against the frozen eval-mode copy they sat 1.36 below on thin
+obstacles (std 3.4), so the penalty charged dropout's noise (0.16 per obstacle sample at weight
+1 before any step); and with both nets in training mode under the same dropout masks, the
+masked sub-networks' logits reached +-60 and their squared difference diverged within a few
+hundred batches at lr 0.001 (docs/EXPERIMENTS.md, sessions 18-19). The cost: one more forward
+and backward pass of the obstacle samples.
 """
 from __future__ import annotations
 
@@ -32,19 +34,15 @@ import torch.nn.functional as F
 from landing_zone.errors import ConfigError
 from landing_zone.judging.ensemble import AnyNet
 
-__all__ = ['LeniencyPenalty', 'RngState']
-
-RngState = tuple[torch.Tensor, torch.Tensor | None]  # (CPU generator, the CUDA device's or None)
+__all__ = ['LeniencyPenalty']
 
 
 class LeniencyPenalty:
-    """``weight * mean_batch([y = 0] * relu(logit - logit_init)^2)`` against a frozen copy of the
-    initial net, evaluated with the dropout masks of the net being trained.
+    """``weight * mean_batch([y = 0] * relu(logit - logit_init)^2)``, both logits in eval mode,
+    against a frozen copy of the initial net.
 
     Args:
-        init: the net fine-tuning starts from, as the training builds it (copied; the copy is
-            frozen and stays in training mode, so it must have the same layers, dropout and
-            memory layout).
+        init: the net fine-tuning starts from (copied; the copy is frozen, in eval mode).
         weight: the penalty's weight beside the mean binary cross-entropy (> 0).
         device: where the copy runs (the training device).
     """
@@ -53,36 +51,31 @@ class LeniencyPenalty:
         if not weight > 0:
             raise ConfigError(f'the leniency penalty weight must be positive, got {weight}')
         self.weight = float(weight)
-        self.device = device
-        # as is, memory layout too: dropout draws its mask in memory order
         self.net = copy.deepcopy(init).to(device)
-        self.net.train()  # dropout on, replaying the trained net's masks (no batch norm here)
+        self.net.eval()
         for p in self.net.parameters():
             p.requires_grad_(False)
 
-    def rng_state(self) -> RngState:
-        """The random state to take right before the trained net's forward pass."""
-        cuda = torch.cuda.get_rng_state(self.device) if self.device.type == 'cuda' else None
-        return torch.get_rng_state(), cuda
-
-    def __call__(self, x: torch.Tensor, y: torch.Tensor, logits: torch.Tensor,
-                 rng: RngState) -> torch.Tensor:
-        """The penalty of one batch.
+    def __call__(self, net: AnyNet, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """The penalty of one batch, with the graph of ``net``'s eval-mode pass over its
+        obstacle samples (``net`` is left in the mode it was in).
 
         Args:
-            x: (B, 1, D, H, W) the inputs the net being trained saw.
+            net: the net being trained.
+            x: (B, 1, D, H, W) the inputs it saw.
             y: (B,) labels, 1 safe, 0 unsafe.
-            logits: (B,) its logits on them (with their graph).
-            rng: :meth:`rng_state` taken right before that forward pass.
         """
-        cpu, cuda = rng
-        devices = [self.device] if cuda is not None else []
-        # fork_rng: the replay leaves the training's random stream where the forward left it
-        with torch.no_grad(), torch.random.fork_rng(devices=devices):
-            torch.set_rng_state(cpu)
-            if cuda is not None:
-                torch.cuda.set_rng_state(cuda, self.device)
-            ref, _ = self.net(x)  # (B,)
-        unsafe = (y == 0).to(logits.dtype)
+        unsafe = y == 0
+        if not bool(unsafe.any()):
+            return x.new_zeros(())
+        xu = x[unsafe]  # (U, 1, D, H, W)
+        with torch.no_grad():
+            ref, _ = self.net(xu)  # (U,)
+        mode = net.training
+        net.eval()
+        try:
+            logits, _ = net(xu)  # (U,)
+        finally:
+            net.train(mode)
         excess = F.relu(logits.float() - ref.float())
-        return self.weight * (unsafe * excess.square()).mean()
+        return self.weight * excess.square().sum() / len(x)

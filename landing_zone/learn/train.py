@@ -308,7 +308,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     penalty = None
     if src is not None and cfg.leniency_penalty > 0:
         from landing_zone.learn.leniency import LeniencyPenalty
-        penalty = LeniencyPenalty(model, cfg.leniency_penalty, device)  # as built: same dropout
+        penalty = LeniencyPenalty(model, cfg.leniency_penalty, device)
     opt = torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum,
                           weight_decay=cfg.weight_decay)
 
@@ -388,11 +388,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                 for group in opt.param_groups:
                     group['lr'] = cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(t, 1.0)))
             with _autocast(device, use_bf16):
-                rng = penalty.rng_state() if penalty is not None else None
                 logits_b, loss = model(x, y)
                 assert loss is not None
-                if penalty is not None and rng is not None:
-                    loss = loss + penalty(x, y, logits_b, rng)
+                if penalty is not None:
+                    loss = loss + penalty(model, x, y)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
