@@ -308,7 +308,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     penalty = None
     if src is not None and cfg.leniency_penalty > 0:
         from landing_zone.learn.leniency import LeniencyPenalty
-        penalty = LeniencyPenalty(model, cfg.leniency_penalty, device)
+        penalty = LeniencyPenalty(src, cfg.leniency_penalty, device)
     opt = torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum,
                           weight_decay=cfg.weight_decay)
 
@@ -391,7 +391,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                 logits_b, loss = model(x, y)
                 assert loss is not None
                 if penalty is not None:
-                    loss = loss + penalty(model, x, y)
+                    loss = loss + penalty(x, y, logits_b)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
