@@ -20,6 +20,18 @@ def test_no_penalty_for_the_initial_net_itself():
     assert float(pen(x, y, logits).detach()) == 0.0
 
 
+def test_dropout_noise_is_charged_in_training_mode():
+    # as documented: the trained net's training-mode logits against the eval-mode copy
+    torch.manual_seed(0)
+    init = SafetyNet(SafetyNetConfig('C3-F4-P4-D8', dropout=0.5))
+    x, y = torch.randn(16, 1, 32, 32, 32), torch.zeros(16, dtype=torch.long)
+    pen = LeniencyPenalty(init, 1.0, torch.device('cpu'))
+    init.train()
+    assert float(pen(x, y, init(x)[0]).detach()) > 0.0
+    init.eval()
+    assert float(pen(x, y, init(x)[0]).detach()) == 0.0
+
+
 def test_only_obstacle_samples_judged_safer_pay():
     init, x, y = nets()
     pen = LeniencyPenalty(init, 2.0, torch.device('cpu'))
