@@ -7,9 +7,9 @@ from landing_zone.judging.net import SafetyNet, SafetyNetConfig
 from landing_zone.learn.leniency import LeniencyPenalty
 
 
-def nets():
+def nets(dropout=0.0):
     torch.manual_seed(0)
-    init = SafetyNet(SafetyNetConfig('C3-F4-P4-D8', dropout=0.0))
+    init = SafetyNet(SafetyNetConfig('C3-F4-P4-D8', dropout=dropout))
     return init, torch.randn(6, 1, 32, 32, 32), torch.tensor([0, 1, 0, 1, 0, 1])
 
 
@@ -22,9 +22,8 @@ def test_no_penalty_for_the_initial_net_itself():
 
 def test_dropout_noise_is_charged_in_training_mode():
     # as documented: the trained net's training-mode logits against the eval-mode copy
-    torch.manual_seed(0)
-    init = SafetyNet(SafetyNetConfig('C3-F4-P4-D8', dropout=0.5))
-    x, y = torch.randn(16, 1, 32, 32, 32), torch.zeros(16, dtype=torch.long)
+    init, x, _ = nets(dropout=0.5)
+    y = torch.zeros(len(x), dtype=torch.long)  # every sample an obstacle
     pen = LeniencyPenalty(init, 1.0, torch.device('cpu'))
     init.train()
     assert float(pen(x, y, init(x)[0]).detach()) > 0.0
