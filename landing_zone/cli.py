@@ -842,8 +842,9 @@ def simulate_flight(
              '[default: all four, unless --families is given].')] = None,
     families: Annotated[Optional[str], typer.Option(
         help='Obstacle families, comma separated (rock, slab, rubble, log, stump, brush, box, '
-             'crate, bucket, pipe, tire, cinder_block, post, cone, coil, pallet, sack; or all, '
-             'train, test): random test instances, cycled after the kinds.')] = None,
+             'crate, bucket, pipe, tire, cinder_block, post, cone, coil, pallet, sack, frame, '
+             'mesh, hoop, assembly; or all, train, test): random test instances, cycled after '
+             'the kinds.')] = None,
     vegetation: Annotated[str, typer.Option(
         help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
              'mixed; or a vegetation family of synth3: uniform, tussock, lodged, layered, '

@@ -654,6 +654,59 @@ def _mesh(rng: np.random.Generator) -> Shape:
     return Shape(sh.settle(v), f, pose, 'single', True, {'form': 'cage', 'wire': wire})
 
 
+def _loop(rng: np.random.Generator, radius: float, wobble: float, n: int = 64) -> np.ndarray:
+    """A closed loop of wire around the origin in the x-y plane: a circle bent out of round
+    (radial waves of 2-3 lobes) and warped out of its plane, its polyline running a little past
+    the start so that the tube's two capped ends overlap (a closed loop, one closed body)."""
+    t = np.linspace(0.0, 2 * math.pi * (1.0 + 2.0 / n), n + 3)
+    r = np.full_like(t, radius)
+    z = np.zeros_like(t)
+    for k in (2, 3):
+        r += radius * rng.uniform(0.0, wobble) * np.cos(k * t + rng.uniform(0, 2 * math.pi))
+        z += radius * rng.uniform(0.0, wobble) * np.sin((k - 1) * t + rng.uniform(0, 2 * math.pi))
+    return np.stack([r * np.cos(t), r * np.sin(t), z], axis=1)
+
+
+def _hoop(rng: np.random.Generator) -> Shape:
+    """Closed loops of wire, hose and cable: a hoop or a wheel rim standing on feet, one or a
+    few propped up leaning, or a tangle of bent loops lying heaped. Unlike a coil (a helix
+    round one axis) the loops have axes of their own."""
+    kind = sh.pick(rng, {'standing': 0.3, 'leaning': 0.3, 'tangle': 0.4})
+    if kind == 'tangle':  # 2-6 loops of wire or cable, bent, each tipped up to 75 degrees
+        pieces = []
+        for _ in range(int(rng.integers(2, 7))):
+            loop = _loop(rng, rng.uniform(0.08, 0.22), rng.uniform(0.05, 0.3))
+            v, f = sh.tube(loop, rng.uniform(0.002, 0.009), 6)
+            v = sh.tilt(v, math.radians(rng.uniform(0, 75)), rng.uniform(0, 2 * math.pi))
+            ang, off = rng.uniform(0, 2 * math.pi), 0.12 * math.sqrt(rng.uniform())
+            # through each other, all on the ground: loops interlock rather than stack
+            pieces.append((v + np.array([off * math.cos(ang), off * math.sin(ang), 0.0]), f))
+        v, f = sh.join(pieces)
+        return Shape(sh.settle(v), f, 'lying', 'piled', True, {'kind': kind, 'loops': len(pieces)})
+    radius = rng.uniform(0.12, 0.3)
+    tube_r = rng.uniform(0.004, 0.02)
+    hoops = 1 if kind == 'standing' or rng.uniform() < 0.6 else int(rng.integers(2, 4))
+    bodies = []
+    for k in range(hoops):  # a round hoop standing in the x-z plane, side by side along y
+        v, f = sh.tube(_loop(rng, radius * rng.uniform(0.85, 1.0), 0.04), tube_r, 8)
+        v = sh.settle(v @ sh.rotation((1.0, 0.0, 0.0), math.pi / 2).T)
+        bodies.append((v + np.array([0.0, 0.06 * k, 0.0]), f))
+    if kind == 'standing':  # on two feet across its plane, as a rim in a stand
+        foot = rng.uniform(0.1, 0.25)
+        for x in (-0.3 * radius, 0.3 * radius):
+            bodies.append(sh.rod((x, -0.5 * foot, 0.01), (x, 0.5 * foot, 0.01), 0.01, 8))
+        v, f = sh.join(bodies)
+        return Shape(sh.settle(v), f, 'upright', 'single', True,
+                     {'kind': kind, 'radius': radius, 'tube': tube_r})
+    v, f = sh.join(bodies)  # leaning 20-60 degrees, its top propped on a stake
+    v = sh.tilt(v, math.radians(rng.uniform(20, 60)), math.pi / 2)
+    top = v[v[:, 2] > v[:, 2].max() - 0.01]
+    x, y = float(top[:, 0].mean()), float(top[:, 1].mean())
+    v, f = sh.join([(v, f), sh.rod((x, y, 0.0), (x, y, float(v[:, 2].max())), 0.01, 8)])
+    return Shape(sh.settle(v), f, 'leaning', 'single' if hoops == 1 else 'piled', True,
+                 {'kind': kind, 'radius': radius, 'tube': tube_r, 'hoops': hoops})
+
+
 def _assembly(rng: np.random.Generator) -> Shape:
     from landing_zone.sim.assembly import build  # it builds Shapes: imported when first used
     return build(rng)
@@ -717,6 +770,11 @@ _FAMILY_LIST = (
                           'smooth'),
            (0.20, 0.60), (0.0, 0.05), 'train', _mesh, (),
            'welded wire mesh: fence panels and wire cages'),
+    # Closed loops of thin wire or hose: see-through structure with axes of its own
+    Family('hoop', 21, _t('man-made', 'gappy', 'compact', ('upright', 'leaning', 'lying'), _P,
+                          'smooth'),
+           (0.10, 0.60), (0.0, 0.05), 'train', _hoop, (),
+           'loops of wire and hose: hoops on feet or propped, tangles of bent loops'),
     # A shape prior, not a kind of object: random assemblies of solid, hollow and gappy parts
     Family('assembly', 20, _t('man-made', 'gappy', 'compact', ('upright', 'lying', 'leaning'),
                               _P, 'irregular'),
