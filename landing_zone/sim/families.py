@@ -669,8 +669,8 @@ def _loop(rng: np.random.Generator, radius: float, wobble: float, n: int = 64) -
 
 def _hoop(rng: np.random.Generator) -> Shape:
     """Closed loops of wire, hose and cable: a hoop or a wheel rim standing on feet, one or a
-    few propped up leaning, or a tangle of bent loops lying heaped. Unlike a coil (a helix
-    round one axis) the loops have axes of their own."""
+    few propped up leaning, or a tangle of bent loops lying through each other. Unlike a coil (a
+    helix round one axis) the loops have axes of their own."""
     kind = sh.pick(rng, {'standing': 0.3, 'leaning': 0.3, 'tangle': 0.4})
     if kind == 'tangle':  # 2-6 loops of wire or cable, bent, each tipped up to 75 degrees
         pieces = []
