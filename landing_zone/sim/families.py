@@ -595,6 +595,16 @@ def _frame(rng: np.random.Generator) -> Shape:
     return Shape(sh.settle(v), f, pose, 'single', True, {'kind': kind, 'rod': r})
 
 
+def _propped(rng: np.random.Generator, bodies: list[sh.Body]) -> sh.Body:
+    """``bodies`` standing in the x-z plane, tilted 20-60 degrees about the x axis and their top
+    edge propped on a stake (a fence panel, a hoop leant against a post)."""
+    v, f = sh.join(bodies)
+    v = sh.tilt(v, math.radians(rng.uniform(20, 60)), math.pi / 2)
+    top = v[v[:, 2] > v[:, 2].max() - 0.01]
+    x, y = float(top[:, 0].mean()), float(top[:, 1].mean())
+    return sh.join([(v, f), sh.rod((x, y, 0.0), (x, y, float(v[:, 2].max())), 0.01, 8)])
+
+
 def _grid(width: float, height: float, pitch_u: float, pitch_v: float, wire: float
           ) -> list[sh.Body]:
     """A welded wire grid in the x-z plane, centred on x = 0, from z = 0 to ``height``."""
@@ -627,12 +637,8 @@ def _mesh(rng: np.random.Generator) -> Shape:
             for x in (-0.4 * width, 0.4 * width):
                 bodies.append(sh.rod((x, -0.5 * foot, 0.01), (x, 0.5 * foot, 0.01), 0.01, 8))
             v, f = sh.join(bodies)
-        else:  # tilted 20-60 degrees, its top edge propped on a stake
-            v, f = sh.join(bodies)
-            v = sh.tilt(v, math.radians(rng.uniform(20, 60)), math.pi / 2)
-            top = v[v[:, 2] > v[:, 2].max() - 0.01]
-            x, y = float(top[:, 0].mean()), float(top[:, 1].mean())
-            v, f = sh.join([(v, f), sh.rod((x, y, 0.0), (x, y, float(v[:, 2].max())), 0.01, 8)])
+        else:
+            v, f = _propped(rng, bodies)
         return Shape(sh.settle(v), f, pose, 'single', True, {'form': 'panel', 'wire': wire})
     lx, ly, lz = rng.uniform(0.25, 0.6), rng.uniform(0.25, 0.6), rng.uniform(0.2, 0.45)
     bodies = []
@@ -698,11 +704,7 @@ def _hoop(rng: np.random.Generator) -> Shape:
         v, f = sh.join(bodies)
         return Shape(sh.settle(v), f, 'upright', 'single', True,
                      {'kind': kind, 'radius': radius, 'tube': tube_r})
-    v, f = sh.join(bodies)  # leaning 20-60 degrees, its top propped on a stake
-    v = sh.tilt(v, math.radians(rng.uniform(20, 60)), math.pi / 2)
-    top = v[v[:, 2] > v[:, 2].max() - 0.01]
-    x, y = float(top[:, 0].mean()), float(top[:, 1].mean())
-    v, f = sh.join([(v, f), sh.rod((x, y, 0.0), (x, y, float(v[:, 2].max())), 0.01, 8)])
+    v, f = _propped(rng, bodies)
     return Shape(sh.settle(v), f, 'leaning', 'single' if hoops == 1 else 'piled', True,
                  {'kind': kind, 'radius': radius, 'tube': tube_r, 'hoops': hoops})
 
