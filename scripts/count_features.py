@@ -28,8 +28,8 @@ import numpy as np
 from sklearn.metrics import roc_auc_score
 
 from landing_zone.config import MapConfig, TileConfig
-from landing_zone.judging.patches import PatchVoxelizer, patch_counts, patch_ground
-from landing_zone.judging.tiles import tile_voxels
+from landing_zone.judging.patches import (PatchVoxelizer, patch_columns, patch_counts,
+                                          patch_ground)
 from landing_zone.sim.shards import SceneDataset
 
 BAND = (0.15, 0.65)  # [m] above the fitted plane: where an obstacle stands out of short grass
@@ -47,6 +47,7 @@ def features(h: np.ndarray, p: np.ndarray, above: np.ndarray, centre: np.ndarray
     top = np.where(h >= 1, above, -np.inf).max(axis=-1)  # each column's highest hit
     around = top[~centre][np.isfinite(top[~centre])]
     canopy = float(np.percentile(around, 99)) if len(around) else 0.0
+    highest = float(max(top[centre].max(), -1.0))
     return {
         'voxels with a hit': float(np.sum(band & (hc >= 1))),
         'voxels with 3 or more hits': float(np.sum(band & (hc >= 3))),
@@ -54,26 +55,9 @@ def features(h: np.ndarray, p: np.ndarray, above: np.ndarray, centre: np.ndarray
         'hits': float((hc * band).sum()),
         'dense voxels (density > 0.5, 2 or more hits)': float(np.sum(band & (density > 0.5)
                                                                      & (hc >= 2))),
-        'highest hit above the plane': float(max(top[centre].max(), -1.0)),
-        'highest hit above the canopy around': float(max(top[centre].max(), -1.0) - canopy),
+        'highest hit above the plane': highest,
+        'highest hit above the canopy around': highest - canopy,
     }
-
-
-def patch_columns(counts: tuple[np.ndarray, ...], plane_z: float, grad: np.ndarray,
-                  map_cfg: MapConfig, tile_cfg: TileConfig) -> tuple[np.ndarray, ...]:
-    """``(hits, passes, above, centre)`` of every column of a patch: ``above`` each voxel
-    centre's height [m] over the centre tile's plane carried across the patch, ``centre`` the
-    centre tile's columns (global tile (0, 0))."""
-    h, p, lo = counts
-    vs = float(map_cfg.voxel_size)
-    tv = tile_voxels(vs, tile_cfg)
-    x = (np.arange(h.shape[0]) + lo[0] + 0.5) * vs - 0.5 * tile_cfg.tile_size
-    y = (np.arange(h.shape[1]) + lo[1] + 0.5) * vs - 0.5 * tile_cfg.tile_size
-    plane = plane_z + grad[0] * x[:, None] + grad[1] * y[None, :]
-    z = (lo[2] + np.arange(h.shape[2]) + 0.5) * vs
-    centre = np.zeros(h.shape[:2], bool)
-    centre[-lo[0]:-lo[0] + tv, -lo[1]:-lo[1] + tv] = True
-    return h, p, z[None, None, :] - plane[:, :, None], centre
 
 
 def auc(y: np.ndarray, x: np.ndarray) -> str:
@@ -103,7 +87,7 @@ def main() -> None:
         plane_z = float(g.plane_z[0])
         if not np.isfinite(plane_z):
             continue  # no ground fitted: the assessor calls such a tile unknown
-        rows.append(features(*patch_columns(counts, plane_z, g.grad[0], mcfg, tcfg)))
+        rows.append(features(*patch_columns(counts, mcfg, tcfg, plane_z, g.grad[0])))
         labels.append(1 - int(scene.label))  # 1: an obstacle in the tile
         veg = params.get('vegetation')
         vegetation.append(veg.get('family', '?') if isinstance(veg, dict) else str(veg))

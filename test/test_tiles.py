@@ -6,7 +6,7 @@ import pytest
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
-from landing_zone.judging.patches import scene_to_input
+from landing_zone.judging.patches import centre_columns, patch_columns, scene_to_input
 from landing_zone.judging.tiles import (extract_tiles, tile_voxels, tiles_from_counts,
                                         tiles_in_box, widen_tiles)
 
@@ -365,3 +365,24 @@ def test_scene_to_input_survives_nonfinite_returns(rng):
     pts[::50] = np.nan
     b = scene_to_input(pts, origin)
     assert b.valid[0] and np.isfinite(b.inputs).all()
+
+
+def test_patch_columns_carry_the_centre_plane_across_the_patch():
+    """A patch of 3 x 3 tiles: heights over the centre tile's plane in every column (the
+    neighbours' too, for what compares a tile with its surroundings), and the centre tile's
+    columns as centre_columns cuts them."""
+    hits, passes = heightfield_grid(np.full((3 * TV, 3 * TV), 10))
+    lo = np.array([-TV, -TV, -20])
+    mcfg, tcfg = MapConfig(voxel_size=VS), TileConfig()
+    grad = np.array([0.1, -0.05])
+    h, p, above, centre = patch_columns((hits, passes, lo), mcfg, tcfg, 0.25, grad)
+    assert h is hits and p is passes and above.shape == hits.shape
+    assert centre.sum() == TV * TV and centre[TV:2 * TV, TV:2 * TV].all()
+    # column (0, 3 * TV - 1): a corner of the neighbour tiles, x = -1.475, y = +1.475 m from the
+    # centre tile's centre; voxel 7 is at z = (-20 + 7 + 0.5) * 0.05 m
+    plane = 0.25 + 0.1 * -1.475 - 0.05 * 1.475
+    assert above[0, 3 * TV - 1, 7] == pytest.approx((-20 + 7 + 0.5) * VS - plane)
+    ch, cp, ca = centre_columns((hits, passes, lo), mcfg, tcfg, 0.25, grad)
+    assert np.array_equal(ch, hits[TV:2 * TV, TV:2 * TV])
+    assert np.array_equal(cp, passes[TV:2 * TV, TV:2 * TV])
+    assert np.array_equal(ca, above[TV:2 * TV, TV:2 * TV])

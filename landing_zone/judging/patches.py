@@ -25,8 +25,8 @@ from landing_zone.judging.tiles import TileBatch, tile_voxels, tiles_from_counts
 if TYPE_CHECKING:
     from landing_zone.mapping.density_map import DensityMap
 
-__all__ = ['scene_to_input', 'patch_counts', 'patch_ground', 'cut_patch', 'centre_columns',
-           'PatchVoxelizer', 'PATCH_Z_MARGIN']
+__all__ = ['scene_to_input', 'patch_counts', 'patch_ground', 'cut_patch', 'patch_columns',
+           'centre_columns', 'PatchVoxelizer', 'PATCH_Z_MARGIN']
 
 # Extra height [m] the patch map of scene_to_input keeps above and below the cube's reach, for
 # ground that is not exactly at z = 0 (slopes, bumps) in a simulated patch.
@@ -129,20 +129,35 @@ def cut_patch(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: Tile
     return batch
 
 
-def centre_columns(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig,
-                   ground_z: float, grad: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The centre tile's voxel columns of a patch's counts (:func:`patch_counts`): ``(hits,
-    passes, above)``, each (tv, tv, Z), ``above`` every voxel centre's height [m] over the plane
-    through ``ground_z`` at the tile's centre with gradient ``grad`` (dz/dx, dz/dy)."""
+def patch_columns(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig,
+                  ground_z: float, grad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Every voxel column of a patch's counts (:func:`patch_counts`): ``(hits, passes, above,
+    centre)``, the first three (X, Y, Z), ``above`` every voxel centre's height [m] over the
+    centre tile's plane (through ``ground_z`` at the tile's centre with gradient ``grad``,
+    dz/dx and dz/dy) carried across the patch, ``centre`` the (X, Y) mask of the centre tile's
+    columns (global tile (0, 0))."""
     h, p, lo = counts
     vs = float(map_cfg.voxel_size)
     tv = tile_voxels(vs, tile_cfg)
-    # the centre tile is global tile (0, 0): box columns -lo .. -lo + tv
-    sl = (slice(-lo[0], -lo[0] + tv), slice(-lo[1], -lo[1] + tv))
-    c = (np.arange(tv) + 0.5) * vs - 0.5 * tile_cfg.tile_size  # voxel centres in the tile
-    plane = ground_z + grad[0] * c[:, None] + grad[1] * c[None, :]  # (tv, tv)
+    # voxel centres relative to the centre tile's centre; the tile is box columns -lo .. -lo + tv
+    x = (np.arange(h.shape[0]) + lo[0] + 0.5) * vs - 0.5 * tile_cfg.tile_size
+    y = (np.arange(h.shape[1]) + lo[1] + 0.5) * vs - 0.5 * tile_cfg.tile_size
+    plane = ground_z + grad[0] * x[:, None] + grad[1] * y[None, :]  # (X, Y)
     z = (lo[2] + np.arange(h.shape[2]) + 0.5) * vs
-    return h[sl], p[sl], z[None, None, :] - plane[:, :, None]
+    centre = np.zeros(h.shape[:2], bool)
+    centre[-lo[0]:-lo[0] + tv, -lo[1]:-lo[1] + tv] = True
+    return h, p, z[None, None, :] - plane[:, :, None], centre
+
+
+def centre_columns(counts: tuple[np.ndarray, ...], map_cfg: MapConfig, tile_cfg: TileConfig,
+                   ground_z: float, grad: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The centre tile's voxel columns of a patch's counts (:func:`patch_counts`): ``(hits,
+    passes, above)``, each (tv, tv, Z), as :func:`patch_columns` gives them."""
+    lo = counts[2]
+    tv = tile_voxels(float(map_cfg.voxel_size), tile_cfg)
+    sl = (slice(-lo[0], -lo[0] + tv), slice(-lo[1], -lo[1] + tv))
+    h, p, above, _ = patch_columns(counts, map_cfg, tile_cfg, ground_z, grad)
+    return h[sl], p[sl], above[sl]
 
 
 def patch_counts(points: np.ndarray, origins: np.ndarray, map_cfg: MapConfig | None = None,
