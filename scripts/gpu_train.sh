@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Generate a synth2 dataset and train safety CNNs on a lent GPU machine (16 cores + one NVIDIA
 # GPU, Python 3.12 with torch/numba/numpy/scipy/sklearn, no internet). trimesh and embreex
-# travel as wheels in .whl/ (fetched as scripts/gpu_finetune.sh says). What must come back goes to $OUT; evaluation
-# runs afterwards on the CPU (landing-zone evaluate), so the device time goes to training.
+# travel as wheels in .whl/ (fetched as scripts/gpu_finetune.sh says). What must come back goes
+# to $OUT; evaluation runs afterwards on the CPU (landing-zone evaluate), so the device time goes
+# to training.
 #   usage: scripts/gpu_train.sh SCENES CACHE_COPIES EPOCHS AUG_COPIES ARCH [ARCH ...]
 set -euo pipefail
 scenes=$1; copies=$2; epochs=$3; aug=$4; shift 4
