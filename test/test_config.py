@@ -24,11 +24,11 @@ def test_the_yaml_file_is_the_one_the_metadata_gives():
 
 
 def test_every_parameter_has_its_facts_and_a_default_inside_its_range():
-    # 28 + the guard section's 9 + the ood section's 2 + the live node's receive_queue,
+    # 28 + the guard section's 10 + the ood section's 2 + the live node's receive_queue,
     # receive_queue_mb, qos_reliability, snapshot.path and snapshot.period + the landing
     # sites' limits (max_slope_deg, max_step, min_clearance, clutter_height) +
     # tiles.align_to_ground
-    assert len(PARAMETERS) == 49
+    assert len(PARAMETERS) == 50
     for name, (default, p) in PARAMETERS.items():
         assert p.description and not p.description.endswith('.'), name
         if p.range is not None:

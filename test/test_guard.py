@@ -106,6 +106,21 @@ def test_a_block_reaching_in_from_the_neighbour_is_seen_whole():
     assert 0 < narrow.hits[1] < r.hits[1] < r.hits[0]
 
 
+def test_a_block_ending_at_the_edge_fires_within_one_voxel_of_reach():
+    hits, passes = ground_box()
+    # its last column is voxel 19, tile 0's last: the map cannot tell whether it reaches into
+    # tile 1 by less than a voxel
+    add_block(hits, passes, (12, 20), (5, 12), 11, 16)
+    assert judge(hits, passes).fired.tolist() == [True, True]
+    assert judge(hits, passes, config=GuardConfig(reach=0.0)).fired.tolist() == [True, False]
+    # a voxel of open ground between them: tile 1 is clear
+    hits, passes = ground_box()
+    add_block(hits, passes, (11, 19), (5, 12), 11, 16)
+    assert judge(hits, passes).fired.tolist() == [True, False]
+    with pytest.raises(ConfigError, match='guard.reach'):
+        GuardConfig(reach=0.3).validate()
+
+
 def test_too_few_returns_do_not_fire():
     hits, passes = ground_box()
     add_block(hits, passes, (4, 6), (5, 6), 11, 14, rays=5)  # 10 x 5 x 15 cm, 10 returns

@@ -24,7 +24,10 @@ For every tile, on the same hit / pass counts the tiler reads:
    tile's column widened by ``margin`` on every side (so an object reaching a few centimetres
    into the tile is seen whole, with the returns on its part in the neighbour).
 3. **Fires** when a cluster with at least ``min_cluster_hits`` returns has a voxel inside the
-   tile's own column. Its returns and the height of its top are the tile's evidence.
+   tile's own column, or within ``reach`` of it (one voxel by default: an obstacle reaching
+   into the tile by less than a voxel leaves its solid voxels beside the tile, where the map
+   cannot tell it from one that stops at the edge). Its returns and the height of its top are
+   the tile's evidence.
 
 Where it fires, the assessor caps P(safe) at ``max_p_safe`` and records why; unknown tiles stay
 unknown (the guard only lowers a judgement, it never makes one). What it cannot see: objects
@@ -82,8 +85,8 @@ class GuardResult:
 
 @nb.njit(cache=True, parallel=True)
 def _guard_kernel(  # type: ignore[no-untyped-def]
-        hits, passes, lo, tiles, ground_k, grad, tv, margin, k_lo, k_hi, min_hits, ratio,
-        shadow, out_hits, out_vox, out_top):
+        hits, passes, lo, tiles, ground_k, grad, tv, margin, reach, k_lo, k_hi, min_hits,
+        ratio, shadow, out_hits, out_vox, out_top):
     """Largest solid cluster reaching into each tile's column (see the module docstring).
 
     ``ground_k[t]`` is the tile's ground voxel in box z coordinates (``_NO_GROUND``: none);
@@ -185,7 +188,8 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
                         c_vox += 1
                         if c > c_top:
                             c_top = c
-                        if margin <= a < margin + tv and margin <= b < margin + tv:
+                        if (margin - reach <= a < margin + tv + reach
+                                and margin - reach <= b < margin + tv + reach):
                             inner = True
                         for o in range(n_off):
                             a2 = a + offsets[o, 0]
@@ -240,6 +244,7 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
     k_lo = max(1, int(math.ceil(config.min_height / voxel_size + 0.5 - 1e-9)))
     k_hi = max(k_lo, int(math.floor(config.max_height / voxel_size - 0.5 + 1e-9)))
     margin = int(round(config.margin / voxel_size))
+    reach = min(margin, int(round(config.reach / voxel_size)))  # validate() keeps it <= margin
     out_hits = np.zeros(n, np.int64)
     out_vox = np.zeros(n, np.int64)
     out_top = np.full(n, -1, np.int64)
@@ -248,7 +253,7 @@ def solid_structure(hits: np.ndarray, passes: np.ndarray, lo: np.ndarray, voxel_
     if n:
         _guard_kernel(np.ascontiguousarray(hits, np.uint32),
                       np.ascontiguousarray(passes, np.uint32), lo_arr, idx, ground_k, g,
-                      int(tile_vox), margin, k_lo, k_hi, int(config.min_hits),
+                      int(tile_vox), margin, reach, k_lo, k_hi, int(config.min_hits),
                       float(config.min_hit_ratio), float(config.max_pass_behind), out_hits,
                       out_vox, out_top)
     fired = out_hits >= int(config.min_cluster_hits)
