@@ -26,7 +26,8 @@ def volumes(n, seed=0):
 # --- the spec ----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('spec', [PAPER_SPEC, 'C7-F64-P4-D512', SMALL, 'C3-F32-P1-D128',
-                                  'D64', 'P2-C3-F16-D64-D32', 'C3-F8-C3-F8-P4-D16'])
+                                  'D64', 'P2-C3-F16-D64-D32', 'C3-F8-C3-F8-P4-D16',
+                                  'S2-F4-C5-F32-P2-C3-F64-D128'])
 def test_spec_round_trips(spec):
     assert format_spec(parse_spec(spec, 32)) == spec
     assert SafetyNet(SafetyNetConfig(spec)).spec == spec
@@ -50,6 +51,8 @@ def test_spec_parses_into_layers():
     ('D512-C3-F8', "token 2 'C3'.*before dense"),
     ('D512-P2', "token 2 'P2'.*before dense"),
     ('C5-F99999', "token 2 'F99999'.*at most"),
+    ('S2-P2-D8', "token 2 'P2'.*S2 must be followed by its filter count"),
+    ('D8-S2-F4', "token 2 'S2'.*before dense"),
 ])
 def test_bad_specs_name_the_bad_token(spec, match):
     with pytest.raises(ConfigError, match=match):
@@ -74,6 +77,26 @@ def test_paper_net_shapes_and_cost():
     assert net.flops() == macs
     logits, loss = net.eval()(torch.zeros(3, 1, 32, 32, 32), torch.ones(3))
     assert logits.shape == (3,) and loss.ndim == 0
+
+
+def test_a_strided_convolution_halves_the_side_from_all_eight_voxels_of_a_block():
+    torch.manual_seed(0)
+    net = SafetyNet(SafetyNetConfig('S2-F4-C5-F32-P2-C3-F64-D128')).eval()
+    conv = net.features[0].conv
+    assert conv.stride == (2, 2, 2) and conv.weight.shape == (4, 1, 2, 2, 2)
+    # 32 -> S2 16 -> C5 12 -> P2 6 -> C3 4: the shipped net's 64 * 4^3 features into D128
+    assert net.dense[0].fc.in_features == 4096 and net.input_pool == 1
+    assert net.flops() == (16 ** 3 * 4 * 8 + 12 ** 3 * 32 * 4 * 125 + 4 ** 3 * 64 * 32 * 27
+                           + 4096 * 128 + 128)
+    # two cubes whose 2^3 blocks hold the same maximum, arranged otherwise: the pool sees
+    # the same thing, the strided convolution does not
+    a = -torch.ones(1, 1, 32, 32, 32)
+    b = a.clone()
+    a[0, 0, 10, 10, 10] = 1.0  # one voxel of the block at (5, 5, 5)
+    b[0, 0, 10:12, 10:12, 10] = 1.0  # a 2 x 2 layer of it
+    pool = torch.nn.functional.max_pool3d
+    assert torch.equal(pool(a, 2), pool(b, 2))
+    assert not torch.equal(conv(a)[..., 5, 5, 5], conv(b)[..., 5, 5, 5])
 
 
 def test_dropout_only_in_training():

@@ -2,8 +2,10 @@
 
 A spec such as ``C7-F32-P2-C5-F64-P2-D512`` reads left to right: ``C7-F32`` a 7^3 convolution
 with 32 filters (valid padding, stride 1) and a ReLU, ``P2`` a 2^3 max-pool, ``D512`` a dense
-layer of 512 units and a ReLU; a final linear unit gives the logit of P(safe). Dropout (0.5 by
-default) follows every convolution and dense layer in training. The file reads top-down, as
+layer of 512 units and a ReLU; a final linear unit gives the logit of P(safe); ``S2-F4``, a 2^3
+convolution of stride 2, halves the side from all 8 voxels of each block where ``P2`` keeps
+their maximum (:mod:`.spec`). Dropout (0.5 by default) follows every convolution and dense
+layer in training. The file reads top-down, as
 nanoGPT's model.py: the blocks, the config, the net. Checkpoints are in :mod:`.checkpoint`,
 inference in :mod:`.inference`.
 """
@@ -41,15 +43,17 @@ DEFAULT_SPEC = FAST_SPEC
 # --- blocks ------------------------------------------------------------------------------------
 
 class ConvBlock(nn.Module):
-    """Valid k^3 convolution, ReLU, dropout."""
+    """Valid k^3 convolution (stride 1, or s for a spec's ``S`` token), ReLU, dropout."""
 
-    def __init__(self, in_ch: int, out_ch: int, kernel: int, dropout: float) -> None:
+    def __init__(self, in_ch: int, out_ch: int, kernel: int, dropout: float,
+                 stride: int = 1) -> None:
         super().__init__()
-        self.conv = nn.Conv3d(in_ch, out_ch, kernel)
+        self.conv = nn.Conv3d(in_ch, out_ch, kernel, stride=stride)
         self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        out: torch.Tensor = self.drop(F.relu(self.conv(x)))  # (B, C_out, D-k+1, H-k+1, W-k+1)
+        # (B, C_out, (D-k)//s+1, (H-k)//s+1, (W-k)//s+1)
+        out: torch.Tensor = self.drop(F.relu(self.conv(x)))
         return out
 
 
@@ -121,7 +125,8 @@ class SafetyNet(nn.Module):
         ch, side = 1, self.config.input_size
         for layer, (out_ch, out_side) in zip(self.layers, shapes):
             if layer.kind == 'conv':
-                features.append(ConvBlock(ch, layer.filters, layer.size, self.config.dropout))
+                features.append(ConvBlock(ch, layer.filters, layer.size, self.config.dropout,
+                                          layer.stride))
             elif layer.kind == 'pool':
                 features.append(PoolBlock(layer.size))
             else:

@@ -3,6 +3,9 @@
 Read left to right: ``C7-F32`` a 7^3 convolution with 32 filters (valid padding, stride 1) and a
 ReLU, ``P2`` a 2^3 max-pool, ``D512`` a dense layer of 512 units and a ReLU; a final linear
 unit (added by :class:`~landing_zone.judging.net.SafetyNet`) gives the logit of P(safe).
+Beyond the paper, ``S2-F4`` is a 2^3 convolution with stride 2 and 4 filters and a ReLU: it
+halves the side as ``P2`` does, but where the pool keeps the largest of each block's 8 voxels,
+its filters are learnt functions of all 8 (how the returns lie inside each 10 cm block).
 """
 from __future__ import annotations
 
@@ -16,20 +19,22 @@ __all__ = ['Layer', 'parse_spec', 'format_spec', 'layer_shapes']
 
 @dataclass(frozen=True)
 class Layer:
-    """One layer of a spec: ``kind`` 'conv' (size = kernel, filters), 'pool' or 'dense'."""
+    """One layer of a spec: ``kind`` 'conv' (size = kernel, filters; ``stride`` 1 for ``C``,
+    the kernel for ``S``), 'pool' or 'dense'."""
 
     kind: str
     size: int
     filters: int = 0
+    stride: int = 1
 
     def __str__(self) -> str:
         if self.kind == 'conv':
-            return f'C{self.size}-F{self.filters}'
+            return f'{"C" if self.stride == 1 else "S"}{self.size}-F{self.filters}'
         return f'{"P" if self.kind == "pool" else "D"}{self.size}'
 
 
-_TOKEN = re.compile(r'([CFPD])([1-9][0-9]*)')
-_LIMITS = {'C': 64, 'F': 4096, 'P': 64, 'D': 65536}
+_TOKEN = re.compile(r'([CSFPD])([1-9][0-9]*)')
+_LIMITS = {'C': 64, 'S': 64, 'F': 4096, 'P': 64, 'D': 65536}
 _EXAMPLE = 'e.g. C7-F32-P2-C5-F64-P2-D512'
 
 
@@ -37,8 +42,9 @@ def parse_spec(spec: str, input_size: int | None = None) -> list[Layer]:
     """Parse the paper's shorthand into layers; with ``input_size``, check the shapes too.
 
     Args:
-        spec: tokens joined by '-': ``C<k>`` then ``F<filters>`` (a convolution), ``P<p>``
-            (max-pool), ``D<units>`` (dense); convolutions and pools come before dense layers.
+        spec: tokens joined by '-': ``C<k>`` then ``F<filters>`` (a convolution), ``S<k>``
+            then ``F<filters>`` (a convolution of stride k), ``P<p>`` (max-pool),
+            ``D<units>`` (dense); convolutions and pools come before dense layers.
         input_size: voxels per side of the input cube; checks that no layer shrinks it to 0.
 
     Raises:
@@ -49,28 +55,30 @@ def parse_spec(spec: str, input_size: int | None = None) -> list[Layer]:
                           f'{spec!r}')
     tokens = spec.strip().split('-')
     layers: list[Layer] = []
-    pending_conv: int | None = None
+    pending_conv: tuple[str, int] | None = None  # the letter and kernel of a C or S token
     for pos, tok in enumerate(tokens, 1):
         m = _TOKEN.fullmatch(tok)
         where = f'token {pos} {tok!r} of spec {spec!r}'
         if m is None:
-            raise ConfigError(f'bad {where}: expected C<kernel>, F<filters>, P<pool> or '
-                              f'D<units> with a positive integer ({_EXAMPLE})')
+            raise ConfigError(f'bad {where}: expected C<kernel>, S<kernel>, F<filters>, '
+                              f'P<pool> or D<units> with a positive integer ({_EXAMPLE})')
         letter, value = m.group(1), int(m.group(2))
         if value > _LIMITS[letter]:
             raise ConfigError(f'bad {where}: {letter} must be at most {_LIMITS[letter]}')
         if pending_conv is not None and letter != 'F':
-            raise ConfigError(f'bad {where}: a convolution C{pending_conv} must be followed by '
-                              f'its filter count F<n>')
+            raise ConfigError(f'bad {where}: a convolution {"".join(map(str, pending_conv))} '
+                              f'must be followed by its filter count F<n>')
         if letter == 'F':
             if pending_conv is None:
-                raise ConfigError(f'bad {where}: F<filters> must follow a convolution C<k>')
-            layers.append(Layer('conv', pending_conv, value))
+                raise ConfigError(f'bad {where}: F<filters> must follow a convolution C<k> or '
+                                  f'S<k>')
+            kind, kernel = pending_conv
+            layers.append(Layer('conv', kernel, value, kernel if kind == 'S' else 1))
             pending_conv = None
-        elif letter == 'C':
+        elif letter in 'CS':
             if layers and layers[-1].kind == 'dense':
                 raise ConfigError(f'bad {where}: convolutions must come before dense layers')
-            pending_conv = value
+            pending_conv = (letter, value)
         elif letter == 'P':
             if layers and layers[-1].kind == 'dense':
                 raise ConfigError(f'bad {where}: pooling must come before dense layers')
@@ -78,8 +86,8 @@ def parse_spec(spec: str, input_size: int | None = None) -> list[Layer]:
         else:
             layers.append(Layer('dense', value))
     if pending_conv is not None:
-        raise ConfigError(f'bad spec {spec!r}: the last convolution C{pending_conv} lacks its '
-                          f'filter count F<n>')
+        raise ConfigError(f'bad spec {spec!r}: the last convolution '
+                          f'{"".join(map(str, pending_conv))} lacks its filter count F<n>')
     if input_size is not None:
         layer_shapes(layers, input_size, spec)
     return layers
@@ -101,7 +109,7 @@ def layer_shapes(layers: list[Layer], input_size: int, spec: str = '') -> list[t
         token = pos + 1  # the C of a convolution, or the layer's one token
         pos += 2 if layer.kind == 'conv' else 1
         if layer.kind == 'conv':
-            side, ch = side - layer.size + 1, layer.filters
+            side, ch = (side - layer.size) // layer.stride + 1, layer.filters
         elif layer.kind == 'pool':
             side = side // layer.size
         else:
