@@ -125,7 +125,10 @@ class SafetyNet(nn.Module):
         ch, side = 1, self.config.input_size
         for layer, (out_ch, out_side) in zip(self.layers, shapes):
             if layer.kind == 'conv':
-                features.append(ConvBlock(ch, layer.filters, layer.size, self.config.dropout,
+                # a strided convolution stands where a pool would: no dropout after it (a
+                # block's few channels are all there is of its 8 voxels)
+                features.append(ConvBlock(ch, layer.filters, layer.size,
+                                          self.config.dropout if layer.stride == 1 else 0.0,
                                           layer.stride))
             elif layer.kind == 'pool':
                 features.append(PoolBlock(layer.size))
