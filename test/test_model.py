@@ -84,6 +84,9 @@ def test_a_strided_convolution_halves_the_side_from_all_eight_voxels_of_a_block(
     net = SafetyNet(SafetyNetConfig('S2-F4-C5-F32-P2-C3-F64-D128')).eval()
     conv = net.features[0].conv
     assert conv.stride == (2, 2, 2) and conv.weight.shape == (4, 1, 2, 2, 2)
+    # it stands where a pool would: no dropout after it (there is after a stride-1 one)
+    assert isinstance(net.features[0].drop, torch.nn.Identity)
+    assert isinstance(net.features[1].drop, torch.nn.Dropout)
     # 32 -> S2 16 -> C5 12 -> P2 6 -> C3 4: the shipped net's 64 * 4^3 features into D128
     assert net.dense[0].fc.in_features == 4096 and net.input_pool == 1
     assert net.flops() == (16 ** 3 * 4 * 8 + 12 ** 3 * 32 * 4 * 125 + 4 ** 3 * 64 * 32 * 27
