@@ -317,7 +317,8 @@ def train(
     out: Annotated[Path, typer.Option(help='Model file to write (.safetensors).')],
     arch: Annotated[Optional[str], typer.Option(
         help='Network spec; default the --init model\'s, else the shipped model\'s '
-             '(P2-C5-F32-P2-C3-F64-D128; the paper\'s best is C7-F32-P2-C5-F64-P2-D512).',
+             '(P2-C5-F32-P2-C3-F64-D128; the paper\'s best is C7-F32-P2-C5-F64-P2-D512; '
+             'S2-F4 is a 2^3 convolution of stride 2, in place of a P2).',
         show_default=False)] = None,
     epochs: Annotated[int, typer.Option(help='Passes over the augmented training set.')] = 6,
     lr: Annotated[float, typer.Option(help='SGD learning rate.')] = 0.01,
