@@ -4,10 +4,10 @@ A spec such as ``C7-F32-P2-C5-F64-P2-D512`` reads left to right: ``C7-F32`` a 7^
 with 32 filters (valid padding, stride 1) and a ReLU, ``P2`` a 2^3 max-pool, ``D512`` a dense
 layer of 512 units and a ReLU; a final linear unit gives the logit of P(safe); ``S2-F4``, a 2^3
 convolution of stride 2, halves the side from all 8 voxels of each block where ``P2`` keeps
-their maximum (:mod:`.spec`). Dropout (0.5 by default) follows every convolution and dense
-layer in training. The file reads top-down, as
-nanoGPT's model.py: the blocks, the config, the net. Checkpoints are in :mod:`.checkpoint`,
-inference in :mod:`.inference`.
+their maximum (:mod:`.spec`). Dropout (0.5 by default) follows every convolution but a strided
+one and every dense layer in training. The file reads top-down, as nanoGPT's model.py: the
+blocks, the config, the net. Checkpoints are in :mod:`.checkpoint`, inference in
+:mod:`.inference`.
 """
 from __future__ import annotations
 
