@@ -71,7 +71,8 @@ def _root() -> None:
                   'Examples:\n\n  landing-zone bench\n\n  landing-zone bench integrate\n\n'
                   '  landing-zone bench integrate --batches 50\n\n'
                   '  landing-zone bench live\n\n  landing-zone bench soak --minutes 30\n\n'
-                  '  landing-zone bench engines  (local processes beside a local Ray cluster)')
+                  '  landing-zone bench engines  (local processes beside a local Ray cluster)\n\n'
+                  '  landing-zone bench assess --model candidate.safetensors')
 def bench(
     which: Annotated[Optional[list[str]], typer.Argument(
         help='Benchmarks to run (integrate, simulate, assess, replay, insert, live, soak, '
@@ -81,9 +82,14 @@ def bench(
     seed: Annotated[int, typer.Option(help='Seed of the benchmark scenes.')] = 0,
     minutes: Annotated[Optional[float], typer.Option(
         help='Length of the soak [min] (default 2).', min=0.1)] = None,
+    model: Annotated[Optional[list[Path]], typer.Option(
+        help='assess: also time this model\'s judgement of the map and of a strip, as the '
+             'assessor runs it (with NAME.ood.safetensors beside it, else a random reference '
+             'of its size); repeat for more.')] = None,
 ) -> None:
     from landing_zone import bench as bench_mod
-    bench_mod.run(which or [], batches=batches, seed=seed, minutes=minutes)
+    bench_mod.run(which or [], batches=batches, seed=seed, minutes=minutes,
+                  models=tuple(str(m) for m in model or ()))
 
 
 # --- replay -----------------------------------------------------------------------------------

@@ -23,6 +23,16 @@ def test_unknown_benchmark_is_one_clear_line():
         'integrate, simulate, assess, replay, insert, live, soak, engines']
 
 
+def test_a_bad_candidate_model_for_the_assess_benchmark_is_one_clear_line(tmp_path):
+    bad = tmp_path / 'candidate.safetensors'
+    bad.write_bytes(b'not a model')
+    out = run_cli('bench', 'assess', '--model', str(bad))
+    assert out.returncode != 0 and 'Traceback' not in out.stderr, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'candidate.safetensors' in lines[0], out.stderr
+    assert 'full map' not in out.stdout  # it fails before any timing
+
+
 def test_simulate_families_are_checked_in_one_line(tmp_path):
     """--families names obstacle families of synth3 only; a wrong one is one line, no file."""
     two = ('--scenes', '2')

@@ -33,8 +33,9 @@ def machine_line() -> str:
 
 
 def run(which: list[str], batches: int = 30, seed: int = 0,
-        minutes: float | None = None) -> dict[str, dict]:
-    """Run the named benchmarks (default: :data:`DEFAULT`); ``minutes`` is the soak's length."""
+        minutes: float | None = None, models: tuple[str, ...] = ()) -> dict[str, dict]:
+    """Run the named benchmarks (default: :data:`DEFAULT`); ``minutes`` is the soak's length,
+    ``models`` candidate model files the assess benchmark times beside the shipped one."""
     unknown = [w for w in which if w not in NAMES]
     if unknown:
         raise ConfigError(f'unknown benchmark {unknown[0]!r}; choose from {", ".join(NAMES)}')
@@ -51,6 +52,8 @@ def run(which: list[str], batches: int = 30, seed: int = 0,
         print(f'\n[{name}]')
         if name == 'soak':
             results[name] = module.run(batches=batches, seed=seed, minutes=minutes)
+        elif name == 'assess':
+            results[name] = module.run(batches=batches, seed=seed, models=models)
         else:
             results[name] = module.run(batches=batches, seed=seed)
     return results

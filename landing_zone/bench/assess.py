@@ -32,12 +32,15 @@ back) integrated into the default 400 x 400 x 80 map, which holds 400 tiles of 1
 Two nets are timed: the shipped model (:data:`~landing_zone.judging.net.DEFAULT_SPEC`) and the
 paper's :data:`~landing_zone.judging.net.PAPER_SPEC`, each loaded from ``models/`` where the file
 is there, otherwise an untrained net of that architecture, which costs exactly the same (timing
-only: its outputs mean nothing). Figures are medians of repeats (best in brackets): the cores
-are shared.
+only: its outputs mean nothing); with ``bench assess --model M``, also each candidate model file
+M, as the shipped one (map and strip, with the OOD reference beside it, else a random one of its
+size): whether a candidate fits the budget. Figures are medians of repeats (best in brackets):
+the cores are shared.
 """
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -92,17 +95,24 @@ def _model(spec: str) -> tuple[SafetyNet, str]:
     return SafetyNet(SafetyNetConfig(spec)).eval(), f'{spec} (untrained: timing only)'
 
 
-def _reference(net: SafetyNet, shipped: bool) -> tuple[FeatureReference, str]:
-    """The OOD reference the shipped model judges with, or a random one of its size."""
-    from landing_zone.assessor import default_model_path
+def _candidate(path: str) -> tuple[SafetyNet, str]:
+    """A model file given on the command line (``bench assess --model``), loaded as any model
+    is (a bad file exits with one clear line)."""
+    net, _ = load_model(path)
+    return net, f'{net.spec} ({Path(path).name})'
+
+
+def _reference(net: SafetyNet, model: Path | None) -> tuple[FeatureReference, str]:
+    """The OOD reference the model file ``model`` judges with (NAME.ood.safetensors beside
+    it), or a random one of its size where there is none."""
     from landing_zone.judging.checkpoint import weights_sha256
     from landing_zone.judging.ood import load_reference, reference_path_for
 
-    if shipped:
+    if model is not None:
         try:
-            path = reference_path_for(default_model_path())
+            path = reference_path_for(model)
             return load_reference(path, weights_sha256(net), net.head.in_features), path.name
-        except Exception:  # no reference shipped (or not this model's): time a random one
+        except Exception:  # no reference beside it (or not this model's): time a random one
             pass
     rng = np.random.default_rng(0)
     feats = unit_rows(rng.normal(size=(SYNTHETIC_REFERENCE, net.head.in_features)))
@@ -173,8 +183,12 @@ def _ensemble_rows(net: SafetyNet | SafetyEnsemble, pooled: np.ndarray, strip_ti
     return out
 
 
-def run(batches: int = 30, seed: int = 0) -> dict:
-    """Measure and print the assessment benchmark; return its figures."""
+def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
+    """Measure and print the assessment benchmark; return its figures. ``models``: candidate
+    model files, each timed as the shipped one is (map and strip, with its OOD reference)."""
+    from landing_zone.assessor import default_model_path
+
+    candidates = [_candidate(m) for m in models]  # a bad file fails before any timing
     batches = max(int(batches), 2)
     repeats = 3
     device = 'cuda' if torch.cuda.is_available() else 'cpu'
@@ -268,8 +282,17 @@ def run(batches: int = 30, seed: int = 0) -> dict:
 
     nets = {}
     refs: dict[str, FeatureReference] = {}
+    # (key, net, label, the file whose OOD reference it flies with; None: no OOD signal)
+    entries: list[tuple[str, SafetyNet, str, Path | None]] = []
     for spec in (DEFAULT_SPEC, PAPER_SPEC):
         net, label = _model(spec)
+        # the shipped net judges with its OOD signal (timed with a random reference when
+        # untrained); the paper's net without one
+        entries.append((spec, net, label, default_model_path() if spec == DEFAULT_SPEC
+                        else None))
+    entries += [(label, net, label, Path(m)) for (net, label), m in zip(candidates, models)]
+    oods: dict[str, dict] = {}
+    for spec, net, label, model_file in entries:
         if device == 'cuda':
             net = net.to('cuda')
         nets[spec] = net
@@ -278,8 +301,8 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         net_s, judged = best_row[1], best_row[0]
         pool = judged.endswith(POOLED)
         x = pooled if pool else batch.inputs
-        if spec == DEFAULT_SPEC:  # what flies: the network with its OOD signal
-            ref, ref_label = _reference(net, 'shipped' in label)
+        if model_file is not None:  # what flies (or would): the network with its OOD signal
+            ref, ref_label = _reference(net, model_file if 'untrained' not in label else None)
             refs[spec] = ref
             prec, cl = judged.split()[0], 'channels-last' in judged
             with Predictor(net) as predictor:
@@ -289,8 +312,8 @@ def run(batches: int = 30, seed: int = 0) -> dict:
                     x, 256, prec, channels_last=cl, pooled=pool)[1]), repeats)
             dist_s, dist_best = _times(lambda: ref.ratio(feats), repeats)
             judged += ' + OOD'
-            results['ood'] = {'reference': ref_label, 'rows': int(len(ref.features)),
-                              'distance_s': dist_s, 'network_with_ood_s': net_s}
+            oods[spec] = {'reference': ref_label, 'rows': int(len(ref.features)),
+                          'distance_s': dist_s, 'network_with_ood_s': net_s}
         full = (cut_med if pool else cut1_med) + ground_med + guard_med + sites_med + net_s
         results[spec] = {
             'label': label, 'mmac_per_tile': net.flops() / 1e6,
@@ -302,13 +325,18 @@ def run(batches: int = 30, seed: int = 0) -> dict:
         for name, med, best in rows:
             print(f'  {name:<28} {med:>14.3f} {best:>8.3f} {med / n * 1e3:>10.2f}')
         if spec in refs:
-            print(f'  OOD reference {results["ood"]["reference"]}: distances of the {n} tiles '
+            print(f'  OOD reference {oods[spec]["reference"]}: distances of the {n} tiles '
                   f'{dist_s * 1e3:.1f} ms ({dist_best * 1e3:.1f}); network with features and '
                   f'distances {net_s:.3f} s')
         verdict = ('met' if full <= TARGET_MAP_S else 'NOT met')
         print(f'  full map (extraction + ground + guard + sites + {judged}): {full:.2f} s; '
               f'target <= {TARGET_MAP_S} s {verdict}; aim {AIM_MAP_S} s; ms per tile '
               f'{best_row[1] / n * 1e3:.2f} (target <= {TARGET_MS_PER_TILE:.0f})')
+
+    results['ood'] = oods[DEFAULT_SPEC]
+    for spec in oods:
+        if spec != DEFAULT_SPEC:
+            results[spec]['ood'] = oods[spec]
 
     # steady state: a sensor sweeps a strip; only the tiles its rays touched are re-assessed
     dmap.pop_dirty()
