@@ -81,18 +81,21 @@ def _times(fn: Callable[[], object], repeats: int) -> tuple[float, float]:
     return float(np.median(ts)), float(np.min(ts))
 
 
-def _model(spec: str) -> tuple[SafetyNet, str]:
+def _model(spec: str) -> tuple[SafetyNet, str, Path | None]:
+    """The net of ``spec`` from ``models/``, its label and the file it came from; an untrained
+    one (file None) where there is no such file."""
     from landing_zone.assessor import default_model_path
     try:
         shipped = default_model_path()
         path = shipped if spec == DEFAULT_SPEC else shipped.parent / f'paper_{spec}.safetensors'
         net, _ = load_model(path)
         if net.spec == spec:
-            return net, f'{net.spec} ({"shipped model" if path == shipped else path.name})'
+            return (net, f'{net.spec} ({"shipped model" if path == shipped else path.name})',
+                    path)
     except Exception:  # no such model file (or unreadable): time an untrained one
         pass
     torch.manual_seed(0)
-    return SafetyNet(SafetyNetConfig(spec)).eval(), f'{spec} (untrained: timing only)'
+    return SafetyNet(SafetyNetConfig(spec)).eval(), f'{spec} (untrained: timing only)', None
 
 
 def _candidate(path: str) -> tuple[SafetyNet, str]:
@@ -186,8 +189,6 @@ def _ensemble_rows(net: SafetyNet | SafetyEnsemble, pooled: np.ndarray, strip_ti
 def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
     """Measure and print the assessment benchmark; return its figures. ``models``: candidate
     model files, each timed as the shipped one is (map and strip, with its OOD reference)."""
-    from landing_zone.assessor import default_model_path
-
     candidates = [_candidate(m) for m in models]  # a bad file fails before any timing
     batches = max(int(batches), 2)
     repeats = 3
@@ -282,17 +283,16 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
 
     nets = {}
     refs: dict[str, FeatureReference] = {}
-    # (key, net, label, the file whose OOD reference it flies with; None: no OOD signal)
-    entries: list[tuple[str, SafetyNet, str, Path | None]] = []
+    # (key, net, label, whether it flies with an OOD signal, the file whose reference that is;
+    # None: a random one of its size). The shipped net and the candidates judge with their OOD
+    # signal, the paper's net without one.
+    entries: list[tuple[str, SafetyNet, str, bool, Path | None]] = []
     for spec in (DEFAULT_SPEC, PAPER_SPEC):
-        net, label = _model(spec)
-        # the shipped net judges with its OOD signal (timed with a random reference when
-        # untrained); the paper's net without one
-        entries.append((spec, net, label, default_model_path() if spec == DEFAULT_SPEC
-                        else None))
-    entries += [(label, net, label, Path(m)) for (net, label), m in zip(candidates, models)]
+        net, label, path = _model(spec)
+        entries.append((spec, net, label, spec == DEFAULT_SPEC, path))
+    entries += [(label, net, label, True, Path(m)) for (net, label), m in zip(candidates, models)]
     oods: dict[str, dict] = {}
-    for spec, net, label, model_file in entries:
+    for spec, net, label, with_ood, model_file in entries:
         if device == 'cuda':
             net = net.to('cuda')
         nets[spec] = net
@@ -301,8 +301,8 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
         net_s, judged = best_row[1], best_row[0]
         pool = judged.endswith(POOLED)
         x = pooled if pool else batch.inputs
-        if model_file is not None:  # what flies (or would): the network with its OOD signal
-            ref, ref_label = _reference(net, model_file if 'untrained' not in label else None)
+        if with_ood:  # what flies (or would): the network with its OOD signal
+            ref, ref_label = _reference(net, model_file)
             refs[spec] = ref
             prec, cl = judged.split()[0], 'channels-last' in judged
             with Predictor(net) as predictor:
