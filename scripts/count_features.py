@@ -140,14 +140,14 @@ def main() -> None:
     mcfg, tcfg = MapConfig(), TileConfig()
     tiles = flight_tiles(Path(args.data), mcfg, tcfg) if args.flights else \
         split_tiles(args.data, args.split, families, mcfg, tcfg)
-    index, labels, vegetation, rows = [], [], [], []
+    keys, labels, vegetation, rows = [], [], [], []  # keys: scene index, or a flight's P(safe)
     for counts, plane_z, grad, label, veg, key in tiles:
         if not np.isfinite(plane_z):
             continue  # no ground fitted: the assessor calls such a tile unknown
         rows.append(features(*patch_columns(counts, mcfg, tcfg, plane_z, grad)))
         labels.append(label)
         vegetation.append(veg)
-        index.append(key)
+        keys.append(key)
     what = 'flight tiles' if args.flights else args.families
     if not rows or len(set(labels)) < 2:
         raise SystemExit(f'count_features: no obstacle tiles and safe tiles of {what} in '
@@ -165,12 +165,12 @@ def main() -> None:
     if args.scores or args.flights:
         if args.flights:  # unknown tiles (None) are never passed
             method = 'the product (network, guard, OOD)'
-            p = np.asarray([-1.0 if v is None else v for v in index], np.float64)
+            p = np.asarray([-1.0 if v is None else v for v in keys], np.float64)
         else:
             doc = json.loads(Path(args.scores).read_text(encoding='utf-8'))
             method = args.method or next(iter(doc['methods']))
             score = dict(zip(doc['scenes'], doc['methods'][method]))
-            p = np.asarray([score[i] for i in index], np.float64)
+            p = np.asarray([score[i] for i in keys], np.float64)
         lift = np.asarray([r['highest hit above the canopy around'] for r in rows])
         print(f'a cap where the tile stands more than TAU above the canopy around, on {method}:')
         for tau in TAUS:
