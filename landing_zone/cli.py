@@ -781,6 +781,10 @@ def simulate(
         help='synth3: the share of twin pairs (0-1) whose obstacle stands at the tile\'s edge: '
              '5-30 cm in in the unsafe scene, 15-30 cm beyond it in the safe one (an obstacle '
              'in the next tile); such a dataset shares no draw with the default one.')] = 0.0,
+    vegetation: Annotated[Optional[str], typer.Option(
+        help='synth3: draw the vegetation from these families, comma separated (e.g. meadow, '
+             'the continuous prior of blade layers; or uniform,lodged) instead of synth3\'s six; '
+             'such a dataset shares no draw with the default one.')] = None,
 ) -> None:
     from landing_zone.engines import check_engine
     from landing_zone.errors import ConfigError
@@ -797,9 +801,10 @@ def simulate(
         if scenes is not None or split != 'both':
             raise ConfigError('--dataset hybrid takes --patches (per flight) and splits by '
                               'flight: not --scenes or --split')
-        if families is not None or edge:  # (synth1/synth2: simulate_dataset refuses them)
-            raise ConfigError('--families and --edge are synth3 options; hybrid inserts the '
-                              'library\'s obstacles')
+        if families is not None or edge or vegetation is not None:
+            # (synth1/synth2: simulate_dataset refuses them)
+            raise ConfigError('--families, --edge and --vegetation are synth3 options; hybrid '
+                              'inserts the library\'s obstacles into recorded ground')
         s = simulate_hybrid(from_ or [], out, test_flights=test_from or [], patches=patches,
                             seed=seed, region=region, points_topic=points_topic,
                             pose_topic=pose_topic, progress=not quiet)
@@ -814,7 +819,9 @@ def simulate(
                              split=split, progress=not quiet, engine=engine.value,
                              address=address,
                              families=None if families is None else parse_families(families),
-                             edge=edge)
+                             edge=edge,
+                             vegetation=None if vegetation is None else tuple(
+                                 f.strip() for f in vegetation.split(',') if f.strip()))
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '

@@ -17,7 +17,7 @@ from landing_zone.sim.shards import SceneDataset
 from landing_zone.sim.families import TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
 from landing_zone.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of, scene_plan,
                                      select_scenes, synth3_train_families)
-from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+from landing_zone.sim.vegetation import SYNTH3_VEGETATION
 
 
 def digest(root):
@@ -50,7 +50,7 @@ def test_plan_pairs_and_splits():
     assert {p['family'] for p in test} == set(SYNTH3_FAMILIES)
     assert set(synth3_train_families()) == set(TRAIN_FAMILIES) & set(SYNTH3_FAMILIES)
     assert max(p['instance'] for p in train) < TEST_BASE <= min(p['instance'] for p in test)
-    assert {p['vegetation']['family'] for p in plans} == set(VEGETATION_FAMILIES)
+    assert {p['vegetation']['family'] for p in plans} == set(SYNTH3_VEGETATION)
     assert {p['sensor']['family'] for p in plans} == set(SENSOR_FAMILIES)
     dens = np.array([p['sensor']['density'] for p in plans])
     heights = np.array([p['sensor']['height'] for p in plans])
@@ -200,17 +200,17 @@ def test_train_without_a_family_and_evaluate_by_family(small, tmp_path):
 
 
 def test_family_folds_partition_the_train_families():
-    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION
     train = synth3_train_families()  # synth3's, fixed as families are added
     folds = family_folds(4, seed=0)
     flat = [spec for fold in folds for spec in fold]
     assert sorted(flat) == sorted([f'obstacle:{f}' for f in train]
-                                  + [f'vegetation:{f}' for f in VEGETATION_FAMILIES])
-    for axis, n in (('obstacle', len(train)), ('vegetation', len(VEGETATION_FAMILIES))):
+                                  + [f'vegetation:{f}' for f in SYNTH3_VEGETATION])
+    for axis, n in (('obstacle', len(train)), ('vegetation', len(SYNTH3_VEGETATION))):
         sizes = [sum(s.startswith(axis + ':') for s in fold) for fold in folds]
         assert max(sizes) - min(sizes) <= 1 and sum(sizes) == n and min(sizes) >= 1
     assert family_folds(4, seed=0) == folds and family_folds(4, seed=1) != folds
-    for bad in (1, len(VEGETATION_FAMILIES) + 1):
+    for bad in (1, len(SYNTH3_VEGETATION) + 1):
         with pytest.raises(ConfigError):
             family_folds(bad)
 
@@ -396,3 +396,35 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
         scene_plan(0, 0, None, 1.5)
     with pytest.raises(SimulationError, match='--edge is a synth3 option'):
         simulate_dataset('synth2', tmp_path / 's2', scenes=2, edge=0.5)
+
+
+def test_other_vegetation_draws_only_those_and_shares_no_draw(tmp_path):
+    """--vegetation: a synth3 dataset grown of other vegetation families (the meadow prior):
+    every scene draws from them, its meta names them, its seeds differ from the default
+    dataset's, resuming with other vegetation is refused, and synth3's own plans are untouched
+    (named in their order, its six are the default)."""
+    from landing_zone.errors import SimulationError
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION
+    plans = [scene_plan(i, 0, vegetation=('meadow',)) for i in range(200)]
+    assert {p['vegetation']['family'] for p in plans} == {'meadow'}
+    both = [scene_plan(i, 0, vegetation=('meadow', 'shrub')) for i in range(200)]
+    assert {p['vegetation']['family'] for p in both} == {'meadow', 'shrub'}
+    default = [scene_plan(i, 0) for i in range(40)]
+    assert [scene_plan(i, 0, vegetation=SYNTH3_VEGETATION) for i in range(40)] == default
+    assert [p['family'] for p in plans[:40]] != [p['family'] for p in default]
+    root = tmp_path / 'meadow'
+    simulate_dataset('synth3', root, scenes=4, workers=1, seed=2, shard_size=2,
+                     progress=False, vegetation=('meadow',))
+    ds = SceneDataset(root, 'all')
+    assert ds.meta['vegetation_families'] == ['meadow']
+    assert ds.meta['families']['vegetation'] == ['meadow']
+    assert set(scene_families(ds)['vegetation']) == {'meadow'}
+    with pytest.raises(DatasetError):
+        simulate_dataset('synth3', root, scenes=4, workers=1, seed=2, shard_size=2,
+                         progress=False, vegetation=('meadow', 'uniform'))
+    with pytest.raises(SimulationError, match="unknown vegetation family 'jungle'"):
+        scene_plan(0, 0, vegetation=('jungle',))
+    with pytest.raises(SimulationError, match='distinct'):
+        scene_plan(0, 0, vegetation=('meadow', 'meadow'))
+    with pytest.raises(SimulationError, match='--vegetation is a synth3 option'):
+        simulate_dataset('synth2', tmp_path / 's2', scenes=2, vegetation=('meadow',))

@@ -54,6 +54,32 @@ def test_families_build_within_their_heights_and_same_seed_same_mesh(family):
     assert max(tops) > 0.03
 
 
+def test_meadow_spans_layers_clumping_and_mats_of_blades_alone():
+    """The meadow prior: one to three blade layers, clumped or not (tufts to bunches), heights
+    3-42 cm, sometimes over a flattened mat; nothing but blades (no shrub, no leaf); hiding an
+    obstacle grows its tallest layer and no other."""
+    terrain = Terrain(TerrainConfig(amplitude=0.0), np.random.default_rng(0), (-2, -2), (2, 2))
+    draws = [draw_vegetation('meadow', np.random.default_rng(k)) for k in range(60)]
+    layers = [layer for d in draws for layer in d['layers']]
+    assert {len(d['layers']) for d in draws} == {1, 2, 3}
+    assert any(d['mat'] is not None for d in draws) and any(d['mat'] is None for d in draws)
+    clumps = [layer['clump_size'] for layer in layers if layer['clump_size'] > 0]
+    assert 0 < len(clumps) < len(layers) and min(clumps) < 20 and max(clumps) > 150
+    assert all(0.03 <= layer['height'] <= 0.42 for layer in layers)
+    assert max(layer['clump_radius'] for layer in layers) > 0.15
+    for k in (0, 1, 2):
+        veg, cover, bushes = build_vegetation(draws[k], terrain, np.random.default_rng(k),
+                                              SQUARE, tile=TILE)
+        assert veg.n_faces > 0 and cover.n_faces == 0 and bushes == []
+    p = draws[0] if len(draws[0]['layers']) > 1 else next(
+        d for d in draws if len(d['layers']) > 1)
+    h = hide_obstacle(p, 0.3)
+    tallest = max(range(len(p['layers'])), key=lambda k: p['layers'][k]['height'])
+    assert h['layers'][tallest]['height'] == 0.3
+    assert all(h['layers'][k] == p['layers'][k] for k in range(len(p['layers'])) if k != tallest)
+    assert p['layers'][tallest]['height'] != 0.3  # (the draw itself is left as it was)
+
+
 def test_dense_families_mostly_hide_the_ground():
     """At a 30 degree depression, the dense end of the blade families lets less than half of
     the rays through to the ground (most often far less)."""

@@ -37,10 +37,10 @@ def lofo_families() -> list[str]:
     """The hold-outs of the LOFO protocol: every train family of obstacles and every vegetation
     family of synth3 (its test families are never trained on)."""
     from landing_zone.sim.synth3 import synth3_train_families
-    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION
 
     return ([f'obstacle:{f}' for f in synth3_train_families()]
-            + [f'vegetation:{f}' for f in VEGETATION_FAMILIES])
+            + [f'vegetation:{f}' for f in SYNTH3_VEGETATION])
 
 
 def fleet_jobs(config: Any, hold_outs: Sequence[str] = (), members: int = 1,

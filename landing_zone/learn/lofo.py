@@ -82,8 +82,8 @@ def family_folds(folds: int, seed: int = 0,
         ConfigError: ``folds`` < 2 or more than an axis has families.
     """
     from landing_zone.sim.synth3 import synth3_train_families
-    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
-    train = {'obstacle': synth3_train_families(), 'vegetation': tuple(VEGETATION_FAMILIES)}
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION
+    train = {'obstacle': synth3_train_families(), 'vegetation': SYNTH3_VEGETATION}
     out: list[list[str]] = [[] for _ in range(folds)]
     for k, axis in enumerate(axes):
         names = train.get(axis)

@@ -37,12 +37,13 @@ from landing_zone.sim.sweeps import (TEST_FRACTION, generate_scene, get_sweep, s
 __all__ = ['simulate_dataset', 'progress_bar']
 
 
-def _make_shard(task: tuple[str, str, int, int, list[int], tuple[str, ...] | None, float]
-                ) -> tuple[int, int, int, float]:
+def _make_shard(task: tuple[str, str, int, int, list[int], tuple[str, ...] | None, float,
+                            tuple[str, ...] | None]) -> tuple[int, int, int, float]:
     """Worker: simulate the scenes of one shard and write it. Returns (shard, scenes, rays, s)."""
-    out, dataset, seed, k, indices, families, edge = task
+    out, dataset, seed, k, indices, families, edge, vegetation = task
     t0 = time.perf_counter()
-    records = [generate_scene(dataset, i, seed, threads=1, families=families, edge=edge)
+    records = [generate_scene(dataset, i, seed, threads=1, families=families, edge=edge,
+                              vegetation=vegetation)
                for i in indices]
     write_npz(Path(out) / shard_name(k), shard_arrays(records))
     return k, len(records), sum(r['rays'] for r in records), time.perf_counter() - t0
@@ -97,6 +98,7 @@ def _plan_key(meta: dict[str, Any]) -> tuple:
             meta.get('split'), meta.get('n_scenes'), meta.get('shard_size'),
             tuple(s['first_index'] for s in meta.get('shards', [])),
             tuple(meta.get('obstacle_families') or ()),
+            tuple(meta.get('vegetation_families') or ()),
             json.dumps(meta.get('edge'), sort_keys=True))  # (its share and ranges)
 
 
@@ -104,7 +106,8 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
                      workers: int | None = None, seed: int = 0, split: str = 'both',
                      shard_size: int = 32, progress: bool = True, engine: str = 'local',
                      address: str | None = None, families: Sequence[str] | None = None,
-                     edge: float = 0.0) -> dict[str, Any]:
+                     edge: float = 0.0, vegetation: Sequence[str] | None = None
+                     ) -> dict[str, Any]:
     """Generate (or finish generating) a dataset directory.
 
     Args:
@@ -127,6 +130,8 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
             :data:`~landing_zone.sim.synth3.SYNTH3_FAMILIES`).
         edge: synth3 only: the share of pairs whose obstacle stands at the tile's edge
             (:mod:`landing_zone.sim.synth3`).
+        vegetation: synth3 only: the vegetation families to draw from (None: synth3's own,
+            :data:`~landing_zone.sim.vegetation.SYNTH3_VEGETATION`).
 
     Returns:
         Summary: scenes, shards written and skipped, seconds, scenes/s, rays, bytes on disk.
@@ -144,6 +149,9 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         if edge:
             raise SimulationError(f'--edge is a synth3 option; {dataset} places its obstacles '
                                   'as the paper does')
+        if vegetation is not None:
+            raise SimulationError(f'--vegetation is a synth3 option; {dataset} grows its own '
+                                  'grass')
     check_engine(engine, address)
     if not isinstance(seed, (int, np.integer)) or seed < 0:
         raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
@@ -155,8 +163,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         from landing_zone.sim import synth3
         families = synth3.check_families(families)
         edge = synth3.check_edge(edge)
+        vegetation = synth3.check_vegetation(vegetation)
         selected = synth3.select_scenes(scenes, split)
-        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families, edge)
+        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families, edge,
+                                vegetation)
     else:
         selected = select_scenes(dataset, scenes, split)
         meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
@@ -170,7 +180,8 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         if shard_complete(out / shard['file'], indices):
             done += len(indices)
         else:
-            tasks.append((str(out.resolve()), dataset, int(seed), k, indices, families, edge))
+            tasks.append((str(out.resolve()), dataset, int(seed), k, indices, families, edge,
+                          vegetation))
     workers = min(workers or os.cpu_count() or 1, max(len(tasks), 1))
     start_method = None
     if engine == 'local' and workers > 1:

@@ -159,10 +159,11 @@ def scene_rng(dataset: str, index: int, seed: int) -> np.random.Generator:
 
 
 def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1,
-                   families: Sequence[str] | None = None, edge: float = 0.0
-                   ) -> dict[str, Any]:
+                   families: Sequence[str] | None = None, edge: float = 0.0,
+                   vegetation: Sequence[str] | None = None) -> dict[str, Any]:
     """Simulate scene ``index`` of a sweep (``families``: synth3's obstacle families, None its
-    own; ``edge``: synth3's share of pairs at the tile's edge).
+    own; ``edge``: synth3's share of pairs at the tile's edge; ``vegetation``: synth3's
+    vegetation families, None its own).
 
     Returns:
         A record: ``points_mm`` int16 (N, 3), ``hit_class`` uint8 (N,), ``origin_index`` uint16
@@ -171,7 +172,7 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1,
     """
     if dataset == 'synth3':
         from landing_zone.sim.synth3 import generate_scene as generate_synth3
-        return generate_synth3(index, seed, threads, families, edge)
+        return generate_synth3(index, seed, threads, families, edge, vegetation)
     from landing_zone.sim.grass import GrassConfig
     from landing_zone.sim.scene import PatchConfig, simulate_patch
     from landing_zone.sim.sensor import SensorConfig

@@ -68,11 +68,12 @@ from landing_zone.errors import SimulationError
 __all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_families',
            'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
            'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta', 'generate_scene',
-           'FAMILY_AXES', 'check_edge', 'EDGE_GAP', 'EDGE_REACH']
+           'FAMILY_AXES', 'check_edge', 'check_vegetation', 'EDGE_GAP', 'EDGE_REACH']
 
 SYNTH3_CODE = 3  # the dataset's word in every seed
 _PLAN = 0x91A4  # the plan's word
 _EDGE = 0xED6E  # the word of a dataset with obstacles at the tile's edge
+_VEGETATION = 0x7E6E  # the word of a dataset of other vegetation families
 EDGE_GAP = (0.15, 0.3)  # [m] a safe scene's obstacle stands this far beyond the tile's edge
 EDGE_REACH = (0.05, 0.3)  # [m] an unsafe one's reaches this far in
 _EDGE_TALL = 0.10  # [m] what reaches in: the part this high above ground (or its top half)
@@ -225,33 +226,62 @@ def check_edge(edge: float) -> float:
     return round(float(edge), 3)
 
 
-def _variant_key(families: tuple[str, ...] | None, edge: float) -> list[int]:
+def check_vegetation(vegetation: Sequence[str] | None) -> tuple[str, ...] | None:
+    """``vegetation`` as the plan takes it: None for synth3's own
+    (:data:`~landing_zone.sim.vegetation.SYNTH3_VEGETATION`, also when they are named in their
+    order), else the names in the order given.
+
+    Raises:
+        SimulationError: an unknown or repeated vegetation family, or none.
+    """
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION, VEGETATION_FAMILIES
+    if vegetation is None:
+        return None
+    names = tuple(str(f) for f in vegetation)
+    if not names or len(set(names)) != len(names):
+        raise SimulationError(f'synth3 vegetation families must be distinct names, got '
+                              f'{list(names)}')
+    unknown = [n for n in names if n not in VEGETATION_FAMILIES]
+    if unknown:
+        raise SimulationError(f'unknown vegetation family {unknown[0]!r}; choose from '
+                              f'{", ".join(VEGETATION_FAMILIES)}')
+    return None if names == SYNTH3_VEGETATION else names
+
+
+def _variant_key(families: tuple[str, ...] | None, edge: float,
+                 vegetation: tuple[str, ...] | None = None) -> list[int]:
     """What a dataset other than synth3's own mixes into every seed (nothing for its own)."""
     from landing_zone.sim.families import get_family
+    from landing_zone.sim.vegetation import VEGETATION_FAMILIES
     key = [] if families is None else [get_family(n).code for n in families]
-    return key + ([_EDGE, int(round(1000 * edge))] if edge > 0 else [])
+    key += [_EDGE, int(round(1000 * edge))] if edge > 0 else []
+    return key + ([_VEGETATION] + [VEGETATION_FAMILIES.index(n) for n in vegetation]
+                  if vegetation is not None else [])
 
 
 def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None,
-               edge: float = 0.0) -> dict[str, Any]:
+               edge: float = 0.0, vegetation: Sequence[str] | None = None) -> dict[str, Any]:
     """Everything scene ``index`` is before its world is drawn (JSON-ready); ``families``:
     the obstacle families to draw from (None: :data:`SYNTH3_FAMILIES`); ``edge``: the share of
     pairs whose obstacle stands at the tile's edge (the plan's ``edge``: which side, where
-    along it, how far beyond it in the safe scene, how far in in the unsafe one)."""
+    along it, how far beyond it in the safe scene, how far in in the unsafe one);
+    ``vegetation``: the vegetation families to draw from (None: synth3's own six)."""
     from landing_zone.sim.families import TEST_BASE
-    from landing_zone.sim.vegetation import VEGETATION_FAMILIES, draw_vegetation
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION, draw_vegetation
     index = _check_index(index)
     fams = check_families(families)
     edge = check_edge(edge)
+    vegs = check_vegetation(vegetation)
     pair = index // 2
     split = _pair_split(pair)
     unsafe = (index % 2) == _pair_unsafe_member(pair)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]
-                                                       + _variant_key(fams, edge)))
+                                                       + _variant_key(fams, edge, vegs)))
     every = SYNTH3_FAMILIES if fams is None else fams
     pool = _train_among(every) if split == 'train' else every
     family = pool[int(rng.integers(len(pool)))]
-    veg = VEGETATION_FAMILIES[int(rng.integers(len(VEGETATION_FAMILIES)))]
+    veg_pool = SYNTH3_VEGETATION if vegs is None else vegs
+    veg = veg_pool[int(rng.integers(len(veg_pool)))]
     plan = {'dataset': 'synth3', 'index': index, 'pair': pair, 'split': split,
             'label': 0 if unsafe else 1, 'family': family,
             'instance': pair + (TEST_BASE if split == 'test' else 0),
@@ -294,19 +324,21 @@ def select_scenes(scenes: int | None = None, split: str = 'both') -> np.ndarray:
 
 def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
               selected: np.ndarray, families: Sequence[str] | None = None,
-              edge: float = 0.0) -> dict[str, Any]:
+              edge: float = 0.0, vegetation: Sequence[str] | None = None) -> dict[str, Any]:
     """meta.json of a synth3 directory (the synth2 layout, plus the families of every scene;
     with other ``families``, their names under ``obstacle_families``; with ``edge``, the share
-    and its ranges under ``edge``)."""
+    and its ranges under ``edge``; with other ``vegetation``, its names under
+    ``vegetation_families``)."""
     from landing_zone.sim.shards import FORMAT_VERSION, shard_name as _shard_name
     from landing_zone.sim.families import get_family
     from landing_zone.sim.scene import PatchConfig
-    from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, VEGETATION_FAMILIES
+    from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, SYNTH3_VEGETATION
     chosen = check_families(families)
     edge = check_edge(edge)
+    vegs = check_vegetation(vegetation)
     every = SYNTH3_FAMILIES if chosen is None else chosen
     train = _train_among(every)
-    plans = [scene_plan(int(i), seed, chosen, edge) for i in selected]
+    plans = [scene_plan(int(i), seed, chosen, edge, vegs) for i in selected]
     counts = {s: {'safe': 0, 'unsafe': 0} for s in ('train', 'test')}
     for p in plans:
         counts[p['split']]['safe' if p['label'] == 1 else 'unsafe'] += 1
@@ -326,6 +358,7 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
         'n_scenes': len(plans), 'shard_size': shard_size, 'test_fraction': TEST_FRACTION,
         'counts': counts,
         **({'obstacle_families': list(chosen)} if chosen is not None else {}),
+        **({'vegetation_families': list(vegs)} if vegs is not None else {}),
         **({'edge': {'share': edge, 'gap': list(EDGE_GAP), 'reach': list(EDGE_REACH),
                      'tall': _EDGE_TALL, 'pairs': sum('edge' in p for p in plans) // 2}}
            if edge > 0 else {}),
@@ -333,7 +366,7 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
                            'test': [n for n in every if n not in train],
                            'instances': 'train: index < TEST_BASE, test: TEST_BASE + pair'},
         'families': {'obstacle': {n: get_family(n).to_json() for n in every},
-                     'vegetation': list(VEGETATION_FAMILIES),
+                     'vegetation': list(SYNTH3_VEGETATION if vegs is None else vegs),
                      'terrain': TERRAIN_FAMILIES, 'sensor': SENSOR_FAMILIES,
                      'safe_shrub_height': SAFE_SHRUB_HEIGHT, 'hide_share': HIDE_SHARE,
                      'density': list(_DENSITY)},
@@ -387,9 +420,11 @@ def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: 
 
 
 def generate_scene(index: int, seed: int = 0, threads: int = 1,
-                   families: Sequence[str] | None = None, edge: float = 0.0) -> dict[str, Any]:
+                   families: Sequence[str] | None = None, edge: float = 0.0,
+                   vegetation: Sequence[str] | None = None) -> dict[str, Any]:
     """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own;
-    ``edge``: the share of pairs at the tile's edge): the
+    ``edge``: the share of pairs at the tile's edge; ``vegetation``: from these vegetation
+    families, None: synth3's own): the
     record :func:`landing_zone.sim.dataset.generate_scene` returns (``points_mm``,
     ``hit_class``, ``origin_index``, ``origins``, ``origin_times``, ``label``, ``split``,
     ``params``, ``rays``, ``timings``)."""
@@ -406,9 +441,10 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     t0 = time.perf_counter()
     fams = check_families(families)
     edge = check_edge(edge)
-    plan = scene_plan(index, seed, fams, edge)
+    vegs = check_vegetation(vegetation)
+    plan = scene_plan(index, seed, fams, edge, vegs)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, int(index)]
-                                                       + _variant_key(fams, edge)))
+                                                       + _variant_key(fams, edge, vegs)))
     patch = PatchConfig()
     aoi, box = patch.aoi, patch.column
     inst = instance(plan['family'], plan['instance'])

@@ -17,7 +17,18 @@ presence of an obstacle only.
               5 cm, and a little short grass
 ``shrub``     low shrubs of leaves and twigs 15-35 cm high, 0.3-0.7 m across, over short grass;
               one stands in the tile more often than not
+``meadow``    a prior rather than a kind of grass: one to three layers of blades, each with its
+              own density, height (3-42 cm), width, lean, curvature and clumping (none, or
+              clumps of 5-400 blades 1.5-25 cm in radius: tufts to porous bunches half a metre
+              across), sometimes over a flattened mat; no leaves (see below)
 ============  ===================================================================================
+
+synth3 draws from the first six (:data:`SYNTH3_VEGETATION`, fixed so that its scenes stay what
+they were); ``meadow`` came after it and is drawn only when asked for (``simulate --dataset
+synth3 --vegetation meadow``). Being made of blades alone, it spans what a one-family-out
+hold-out of ``shrub`` leaves out of training (leafy canopies) without holding any of it, but
+its clumped layers cover ``tussock``'s clumps: a model trained on meadow has seen tussock-like
+structure, so ``tussock`` held out is then no longer a family nothing in training resembles.
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
@@ -40,8 +51,9 @@ from landing_zone.sim.grass import (Bush, ScaleField, VegetationConfig, blade_st
 from landing_zone.sim.mesh import GROUND, Mesh
 from landing_zone.sim.terrain import Terrain
 
-__all__ = ['VEGETATION_FAMILIES', 'SAFE_SHRUB_HEIGHT', 'MAX_VEGETATION_HEIGHT',
-           'draw_vegetation', 'vegetation_top', 'hide_obstacle', 'build_vegetation']
+__all__ = ['VEGETATION_FAMILIES', 'SYNTH3_VEGETATION', 'SAFE_SHRUB_HEIGHT',
+           'MAX_VEGETATION_HEIGHT', 'draw_vegetation', 'vegetation_top', 'hide_obstacle',
+           'build_vegetation']
 
 SAFE_SHRUB_HEIGHT = 0.35  # [m]
 _LODGED_LENGTH = 0.6  # [m] longest blade of lodged grass
@@ -90,10 +102,38 @@ def _draw_shrub(rng: np.random.Generator) -> dict[str, Any]:
             'in_tile': bool(rng.uniform() < 0.7)}
 
 
+def _log_u(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _draw_meadow(rng: np.random.Generator) -> dict[str, Any]:
+    n = int(rng.integers(1, 4))
+    total = _log_u(rng, 800.0, 6000.0)  # blades per m^2 over all layers
+    share = rng.dirichlet(np.ones(n))
+    layers = []
+    for k in range(n):
+        clumped = bool(rng.uniform() < 0.5)
+        layers.append({
+            'density': round(max(total * float(share[k]), 50.0), 1),
+            'height': _u(rng, 0.03, 0.42), 'width': _u(rng, 0.002, 0.009),
+            'lean': _u(rng, 5, 60), 'segments': int(rng.integers(2, 6)),
+            'bend': _u(rng, 0.6, 3.0), 'height_cv': _u(rng, 0.1, 0.45),
+            'clump_size': round(_log_u(rng, 5.0, 400.0), 1) if clumped else 0.0,
+            'clump_radius': round(_log_u(rng, 0.015, 0.25), 4)})
+    mat = None
+    if rng.uniform() < 0.3:
+        mat = {'density': _u(rng, 500, 4000), 'height': _u(rng, 0.04, 0.15),
+               'width': _u(rng, 0.003, 0.008), 'lean': _u(rng, 60, 85),
+               'azimuth': _u(rng, 0, 2 * math.pi), 'spread': _u(rng, 15, 90)}
+    return {'layers': layers, 'mat': mat}
+
+
 _DRAW: dict[str, Callable[[np.random.Generator], dict[str, Any]]] = {
     'uniform': _draw_uniform, 'tussock': _draw_tussock, 'lodged': _draw_lodged,
-    'layered': _draw_layered, 'bare': _draw_bare, 'shrub': _draw_shrub}
+    'layered': _draw_layered, 'bare': _draw_bare, 'shrub': _draw_shrub,
+    'meadow': _draw_meadow}
 VEGETATION_FAMILIES = tuple(_DRAW)
+SYNTH3_VEGETATION = VEGETATION_FAMILIES[:6]  # what synth3 draws unless told (fixed)
 
 
 def _check(family: str) -> None:
@@ -120,6 +160,12 @@ def vegetation_top(params: dict[str, Any]) -> float:
         return max(_blade_top(params['height']), 0.05)
     if fam == 'lodged':
         return _blade_top(params['height'], 0.3)
+    if fam == 'meadow':
+        tops = [_blade_top(layer['height'], max(layer['height_cv'], 0.25))
+                for layer in params['layers']]
+        if params['mat'] is not None:
+            tops.append(_blade_top(params['mat']['height'], 0.3))
+        return max(tops)
     return _blade_top(params['height'])
 
 
@@ -129,9 +175,15 @@ def _blade_top(mean: float, spread: float = 0.25) -> float:
 
 def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
     """The same vegetation grown to hide an obstacle ``height`` high: its (tall) blades' mean
-    height set to it, within the family's range. Families that cannot hide anything (lodged,
-    bare, shrub) are returned unchanged."""
+    height set to it, within the family's range (meadow: its tallest layer's). Families that
+    cannot hide anything (lodged, bare, shrub) are returned unchanged."""
     out = dict(params)
+    if params['family'] == 'meadow':
+        layers = [dict(layer) for layer in params['layers']]
+        tallest = max(range(len(layers)), key=lambda k: layers[k]['height'])
+        layers[tallest]['height'] = round(float(np.clip(height, 0.08, 0.42)), 4)
+        out['layers'] = layers
+        return out
     key = {'uniform': 'height', 'tussock': 'height', 'layered': 'tall_height'}.get(
         params['family'])
     if key is not None:
@@ -184,6 +236,17 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
                                        terrain, rng, polygon, density_scale, height_scale))
     if fam == 'lodged':
         parts.append(_lodged(params, terrain, rng, polygon, density_scale))
+    if fam == 'meadow':
+        for layer in params['layers']:
+            cfg = VegetationConfig(
+                blade_width=layer['width'], inclination_std=layer['lean'],
+                clump_size=layer['clump_size'], clump_radius=layer['clump_radius'],
+                height_cv=layer['height_cv'], segments=layer['segments'], bend=layer['bend'],
+                max_height=MAX_VEGETATION_HEIGHT)
+            parts.append(vegetation_blades(cfg, layer['density'], layer['height'], terrain,
+                                           rng, polygon, density_scale, height_scale))
+        if params['mat'] is not None:
+            parts.append(_lodged(params['mat'], terrain, rng, polygon, density_scale))
     if fam == 'bare':
         cover = Mesh.concat([_gravel(params, terrain, rng, polygon),
                              _debris(params, terrain, rng, polygon)])
