@@ -28,6 +28,7 @@ LONG = {
     'landing_zone.sim.sensor': 'the scanner: patterns, nodding, noise, scans',
     'landing_zone.sim.flight': 'a simulated flight: its site, path and bag',
     'landing_zone.sim.families': 'the catalogue of obstacle families, one generator each',
+    'landing_zone.sim.synth3': 'the synth3 dataset: a pair\'s plan and a scene drawn from it',
 }
 
 

@@ -161,9 +161,10 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
     if dataset == 'synth3':
         from landing_zone.sim import synth3
+        from landing_zone.sim.vegetation import check_vegetation
         families = synth3.check_families(families)
         edge = synth3.check_edge(edge)
-        vegetation = synth3.check_vegetation(vegetation)
+        vegetation = check_vegetation(vegetation)
         selected = synth3.select_scenes(scenes, split)
         meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families, edge,
                                 vegetation)

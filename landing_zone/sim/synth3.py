@@ -52,7 +52,8 @@ reports each family of the test split.
 **Format, determinism, resuming**: as synth1/synth2 (:mod:`landing_zone.sim.dataset`); scene
 ``i`` draws its world from ``SeedSequence([seed, 3, i])``, its pair's plan from
 ``SeedSequence([seed, 3, pair, PLAN])`` (with other ``families``, their codes appended to both;
-with ``edge``, its word and the share in thousandths after them).
+with ``edge``, its word and the share in thousandths after them; with other ``vegetation``
+families, e.g. the meadow prior, its word and their indices last).
 """
 from __future__ import annotations
 
@@ -68,7 +69,7 @@ from landing_zone.errors import SimulationError
 __all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_families',
            'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
            'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta', 'generate_scene',
-           'FAMILY_AXES', 'check_edge', 'check_vegetation', 'EDGE_GAP', 'EDGE_REACH']
+           'FAMILY_AXES', 'check_edge', 'EDGE_GAP', 'EDGE_REACH']
 
 SYNTH3_CODE = 3  # the dataset's word in every seed
 _PLAN = 0x91A4  # the plan's word
@@ -226,28 +227,6 @@ def check_edge(edge: float) -> float:
     return round(float(edge), 3)
 
 
-def check_vegetation(vegetation: Sequence[str] | None) -> tuple[str, ...] | None:
-    """``vegetation`` as the plan takes it: None for synth3's own
-    (:data:`~landing_zone.sim.vegetation.SYNTH3_VEGETATION`, also when they are named in their
-    order), else the names in the order given.
-
-    Raises:
-        SimulationError: an unknown or repeated vegetation family, or none.
-    """
-    from landing_zone.sim.vegetation import SYNTH3_VEGETATION, VEGETATION_FAMILIES
-    if vegetation is None:
-        return None
-    names = tuple(str(f) for f in vegetation)
-    if not names or len(set(names)) != len(names):
-        raise SimulationError(f'synth3 vegetation families must be distinct names, got '
-                              f'{list(names)}')
-    unknown = [n for n in names if n not in VEGETATION_FAMILIES]
-    if unknown:
-        raise SimulationError(f'unknown vegetation family {unknown[0]!r}; choose from '
-                              f'{", ".join(VEGETATION_FAMILIES)}')
-    return None if names == SYNTH3_VEGETATION else names
-
-
 def _variant_key(families: tuple[str, ...] | None, edge: float,
                  vegetation: tuple[str, ...] | None = None) -> list[int]:
     """What a dataset other than synth3's own mixes into every seed (nothing for its own)."""
@@ -267,7 +246,7 @@ def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None,
     along it, how far beyond it in the safe scene, how far in in the unsafe one);
     ``vegetation``: the vegetation families to draw from (None: synth3's own six)."""
     from landing_zone.sim.families import TEST_BASE
-    from landing_zone.sim.vegetation import SYNTH3_VEGETATION, draw_vegetation
+    from landing_zone.sim.vegetation import SYNTH3_VEGETATION, check_vegetation, draw_vegetation
     index = _check_index(index)
     fams = check_families(families)
     edge = check_edge(edge)
@@ -332,7 +311,8 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
     from landing_zone.sim.shards import FORMAT_VERSION, shard_name as _shard_name
     from landing_zone.sim.families import get_family
     from landing_zone.sim.scene import PatchConfig
-    from landing_zone.sim.vegetation import SAFE_SHRUB_HEIGHT, SYNTH3_VEGETATION
+    from landing_zone.sim.vegetation import (SAFE_SHRUB_HEIGHT, SYNTH3_VEGETATION,
+                                             check_vegetation)
     chosen = check_families(families)
     edge = check_edge(edge)
     vegs = check_vegetation(vegetation)
@@ -435,7 +415,8 @@ def generate_scene(index: int, seed: int = 0, threads: int = 1,
     from landing_zone.sim.scene import PatchConfig, World
     from landing_zone.sim.sensor import hover_scan
     from landing_zone.sim.terrain import SlopedTerrain, TerrainConfig
-    from landing_zone.sim.vegetation import build_vegetation, hide_obstacle, vegetation_top
+    from landing_zone.sim.vegetation import (build_vegetation, check_vegetation, hide_obstacle,
+                                             vegetation_top)
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

@@ -40,7 +40,7 @@ Gravel and debris are labelled ground (they are part of the surface a skid stand
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -52,8 +52,8 @@ from landing_zone.sim.mesh import GROUND, Mesh
 from landing_zone.sim.terrain import Terrain
 
 __all__ = ['VEGETATION_FAMILIES', 'SYNTH3_VEGETATION', 'SAFE_SHRUB_HEIGHT',
-           'MAX_VEGETATION_HEIGHT', 'draw_vegetation', 'vegetation_top', 'hide_obstacle',
-           'build_vegetation']
+           'MAX_VEGETATION_HEIGHT', 'check_vegetation', 'draw_vegetation', 'vegetation_top',
+           'hide_obstacle', 'build_vegetation']
 
 SAFE_SHRUB_HEIGHT = 0.35  # [m]
 _LODGED_LENGTH = 0.6  # [m] longest blade of lodged grass
@@ -134,6 +134,27 @@ _DRAW: dict[str, Callable[[np.random.Generator], dict[str, Any]]] = {
     'meadow': _draw_meadow}
 VEGETATION_FAMILIES = tuple(_DRAW)
 SYNTH3_VEGETATION = VEGETATION_FAMILIES[:6]  # what synth3 draws unless told (fixed)
+
+
+def check_vegetation(vegetation: Sequence[str] | None) -> tuple[str, ...] | None:
+    """``vegetation`` as synth3's plan takes it: None for synth3's own
+    (:data:`SYNTH3_VEGETATION`, also when they are named in their order), else the names in the
+    order given.
+
+    Raises:
+        SimulationError: an unknown or repeated vegetation family, or none.
+    """
+    if vegetation is None:
+        return None
+    names = tuple(str(f) for f in vegetation)
+    if not names or len(set(names)) != len(names):
+        raise SimulationError(f'synth3 vegetation families must be distinct names, got '
+                              f'{list(names)}')
+    unknown = [n for n in names if n not in VEGETATION_FAMILIES]
+    if unknown:
+        raise SimulationError(f'unknown vegetation family {unknown[0]!r}; choose from '
+                              f'{", ".join(VEGETATION_FAMILIES)}')
+    return None if names == SYNTH3_VEGETATION else names
 
 
 def _check(family: str) -> None:
