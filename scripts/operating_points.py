@@ -11,10 +11,15 @@ same for every model: a ranking, not a calibration). A source is a score file of
 it), or a ``scripts/guard_eval.py`` WORKDIR (its tiles' final P(safe), net + guard + OOD, all
 conditions pooled). With ``--edge DIR SCORES...`` (a ``simulate --dataset synth3 --edge``
 directory and score files made on it) those scores' edge pairs are also split by how far
-beyond the edge the safe scene's obstacle stands and how far in the unsafe one's reaches::
+beyond the edge the safe scene's obstacle stands and how far in the unsafe one's reaches.
+With ``--bar DIR`` (the synth3 directory the score files were made on), per obstacle family
+the share of its safe scenes flagged at the threshold that passes 2 % and 0.5 % of its
+obstacle tiles: issue 15's bar at 0.5 and 0.9 read as a ranking, which no calibration of the
+scores meets unless these shares are small::
 
     python scripts/operating_points.py runs/eval/a.scores.json runs/eval/b.scores.json \\
-        [--edge data/edge_test runs/eval/a.scores.json] [--keep 0.5 0.85]
+        [--edge data/edge_test runs/eval/a.scores.json] [--keep 0.5 0.85] \\
+        [--bar data/synth3_test]
     python scripts/operating_points.py runs/ge_shipped runs/ge_edge --keep 0.95 0.9
 """
 from __future__ import annotations
@@ -27,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 BANDS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))  # [m] gap / reach bands of the edge pairs
+BAR = (0.02, 0.005)  # issue 15: obstacle tiles passed at 0.5 and at 0.9, at most
 
 
 def sources(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, list[int] | None]:
@@ -67,6 +73,9 @@ def main() -> int:
                     help='shares of the safe tiles kept (judged at or above the threshold)')
     ap.add_argument('--edge', type=Path, nargs='+', default=None, metavar='DIR SCORES',
                     help='a synth3 --edge directory, then score files made on it')
+    ap.add_argument('--bar', type=Path, default=None, metavar='DIR',
+                    help='the synth3 directory of the score files: per obstacle family, safe '
+                         'tiles flagged where 2 %% / 0.5 %% of its obstacle tiles pass')
     args = ap.parse_args()
     print('| source | method | AUC | ECE | obstacle >= 0.5 / >= 0.9 | safe flagged | '
           'safe >= 0.9 | '
@@ -129,6 +138,34 @@ def main() -> int:
                              f'{pct(float(np.mean(p[k] >= 0.9)) if k.any() else None)} '
                              f'of {k.sum()}')
             print(f'| {src} | {name} | ' + ' | '.join(cells) + ' |')
+    return bar(args.bar, args.sources) if args.bar is not None else 0
+
+
+def bar(data: Path, srcs: list[Path]) -> int:
+    """Per score file, method and obstacle family (and pooled): the safe scenes flagged at the
+    threshold above which 2 % and 0.5 % of the family's obstacle scenes lie."""
+    from landing_zone.learn.lofo import scene_families
+    from landing_zone.sim.shards import SceneDataset
+    family = np.asarray(scene_families(SceneDataset(data, 'test'))['obstacle'])
+    print('\n| source | method | obstacle family | scenes | '
+          + ' | '.join(f'safe flagged where {b:.1%} of obstacles pass' for b in BAR) + ' |')
+    print('|---|---|---|' + '---:|' * (1 + len(BAR)))
+    for src in srcs:
+        got = read(src)
+        if got is None:
+            return 2
+        methods, y, scenes = got
+        if scenes is None or max(scenes) >= len(family):
+            print(f'operating_points: {src}: not a score file of {data}', file=sys.stderr)
+            return 2
+        fam = family[np.asarray(scenes)]
+        for name, p in methods.items():
+            for f in sorted(set(fam)) + ['pooled']:
+                k = np.ones(len(fam), bool) if f == 'pooled' else fam == f
+                safe, unsafe = p[k & (y == 1)], p[k & (y == 0)]
+                cells = [pct(float(np.mean(safe < np.quantile(unsafe, 1.0 - b))))
+                         for b in BAR]
+                print(f'| {src.name} | {name} | {f} | {k.sum()} | ' + ' | '.join(cells) + ' |')
     return 0
 
 
