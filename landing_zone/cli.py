@@ -861,8 +861,8 @@ def simulate_flight(
              'the kinds.')] = None,
     vegetation: Annotated[str, typer.Option(
         help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
-             'mixed; or a vegetation family of synth3: uniform, tussock, lodged, layered, '
-             'bare (gravel), shrub.')] = 'default',
+             'mixed; or a vegetation family: uniform, tussock, lodged, layered, bare '
+             '(gravel), shrub (synth3\'s six), meadow (the prior of blade layers).')] = 'default',
     grass_density: Annotated[Optional[float], typer.Option(
         help='Blades per m^2 of a typical patch [default: 600].')] = None,
     grass_height: Annotated[Optional[float], typer.Option(

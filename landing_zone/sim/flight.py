@@ -203,7 +203,8 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
 
     Args:
         vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of
-            grass) or a vegetation family of synth3 (:data:`VEGETATION_FAMILIES`).
+            grass) or a vegetation family (:data:`VEGETATION_FAMILIES`: synth3's six and
+            the meadow prior).
         scan_pattern: one of :data:`SCAN`.
         density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
         **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,
