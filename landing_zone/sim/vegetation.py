@@ -25,10 +25,10 @@ presence of an obstacle only.
 
 synth3 draws from the first six (:data:`SYNTH3_VEGETATION`, fixed so that its scenes stay what
 they were); ``meadow`` came after it and is drawn only when asked for (``simulate --dataset
-synth3 --vegetation meadow``). Being made of blades alone, it spans what a one-family-out
-hold-out of ``shrub`` leaves out of training (leafy canopies) without holding any of it, but
-its clumped layers cover ``tussock``'s clumps: a model trained on meadow has seen tussock-like
-structure, so ``tussock`` held out is then no longer a family nothing in training resembles.
+synth3 --vegetation meadow``). Made of blades alone, it holds nothing of ``shrub`` (leafy
+canopies), so ``shrub`` held out stays unseen with meadow in training; its clumped layers do
+cover ``tussock``'s clumps, so ``tussock`` held out no longer is. What it does as training data
+(little): ``docs/EXPERIMENTS.md``, "The meadow prior".
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
