@@ -17,16 +17,7 @@
 set -euo pipefail
 [ $# -ge 1 ] || { echo "usage: $0 NAME:SEED[:FAMILIES] ..." >&2; exit 2; }
 out=${OUT:-/tmp/out}; data=${DATA:-/tmp/finetune_data}; mkdir -p "$out" "$data"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site .whl/*.whl
-export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 NUMBA_CACHE_DIR=/tmp/numba
-lz="python3 -m landing_zone"
-step() {  # run a command, keep its summary lines and say how long it took
-    local t0; t0=$(date +%s)
-    "$@" 2>&1 | tr '\r' '\n' | grep -E '^(synth3:|epoch [0-9]+:|train:|wrote)' || true
-    echo "[$(( $(date +%s) - t0 )) s] $*"
-}
-sim() { step $lz simulate --dataset synth3 --split train --workers "$(nproc)" --quiet "$@"; }
+source "$(dirname "$0")/gpu_env.sh"  # wheels, paths, step and sim
 sim --families frame,mesh --scenes 1200 --seed 1 --out "$data/thin_train"
 sim --scenes 1200 --seed 0 --out "$data/synth3_some"
 sim --edge 1 --scenes 2400 --seed 8 --out "$data/edge15_train"

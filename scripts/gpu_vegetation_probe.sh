@@ -16,16 +16,7 @@
 set -euo pipefail
 [ $# -ge 1 ] || { echo "usage: $0 ARM:FAMILY:SEED ..." >&2; exit 2; }
 out=${OUT:-/tmp/out}; data=${DATA:-/tmp/probe_data}; mkdir -p "$out" "$data"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
-    --target /tmp/site .whl/*.whl
-export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 NUMBA_CACHE_DIR=/tmp/numba
-lz="python3 -m landing_zone"
-step() {  # run a command, keep its summary lines and say how long it took
-    local t0; t0=$(date +%s)
-    "$@" 2>&1 | tr '\r' '\n' | grep -E '^(synth3:|epoch [0-9]+:|train:|wrote)' || true
-    echo "[$(( $(date +%s) - t0 )) s] $*"
-}
-sim() { step $lz simulate --dataset synth3 --split train --workers "$(nproc)" --quiet "$@"; }
+source "$(dirname "$0")/gpu_env.sh"  # wheels, paths, step and sim
 sim --scenes 5200 --seed 3 --out "$data/synth3_b"
 sim --scenes 1200 --seed 0 --out "$data/synth3_some"
 sim --vegetation meadow --scenes 1200 --seed 20 --out "$data/meadow_train"
