@@ -165,6 +165,25 @@ def _figures(doc):
                 if k == 'flights' else v) for k, v in doc.items() if k not in drop}
 
 
+def test_flight_figures_count_what_a_planner_meets():
+    """Obstacle tiles passed at 0.5 and at 0.9, safe tiles flagged (< 0.5), unjudged tiles;
+    None where a class is missing; the markdown table shows each."""
+    from landing_zone.learn.flights import _figures as figures, markdown_flights
+    f = figures(np.array([0.95, 0.6, 0.2, 0.4, 0.8]), np.array([0, 0, 0, 1, 1]), 8)
+    assert f['obstacle_passed'] == pytest.approx(2 / 3)
+    assert f['obstacle_passed_0.9'] == pytest.approx(1 / 3)
+    assert f['safe_flagged'] == pytest.approx(1 / 2)
+    assert f['obstacle_judged_safe'] == 2 and f['unjudged'] == pytest.approx(3 / 8)
+    clear = figures(np.array([0.3, 0.9]), np.array([1, 1]), 2)
+    assert clear['obstacle_passed'] is None and clear['obstacle_passed_0.9'] is None
+    assert clear['safe_flagged'] == 0.5 and clear['auc'] is None
+    sites = {'sites_listed': 1, 'sites_over_obstacle': 0, 'site_ece': None}
+    table = markdown_flights({'flights': [dict(f, bag='a.mcap', **sites)],
+                              'pooled': dict(clear, **sites)})
+    assert '| a.mcap | 5 of 8 | ' in table and '66.7% (2 of 3) | 33.3% | 50.0% |' in table
+    assert '| **pooled** | 2 of 2 | - | ' in table and '| - | - | 50.0% |' in table
+
+
 @pytest.mark.slow
 def test_evaluate_flights_same_figures_across_engines(ray_cluster, flights, model_file,
                                                       tmp_path):
@@ -186,7 +205,8 @@ def test_evaluate_flights_same_figures_across_engines(ray_cluster, flights, mode
     assert pooled['obstacle_tiles'] <= sum(unsafe) and pooled['obstacle_tiles'] > 0
     assert pooled['unjudged'] == pytest.approx(1 - pooled['tiles_judged'] / 72)
     for f in local['flights'] + [pooled]:
-        for key in ('auc', 'ece', 'obstacle_passed', 'site_ece'):
+        for key in ('auc', 'ece', 'obstacle_passed', 'obstacle_passed_0.9', 'safe_flagged',
+                    'site_ece'):
             assert f[key] is None or 0.0 <= f[key] <= 1.0
         assert 0 <= f['sites_over_obstacle'] <= f['sites_listed']
         assert 0 <= f['footprints_unsafe'] <= f['footprints']

@@ -11,7 +11,10 @@ every flight's labelled tiles:
 * ``ece``: expected calibration error of P(safe) on the same tiles (15 bins,
   :mod:`landing_zone.learn.calibration`);
 * ``obstacle_passed``: the share of judged obstacle tiles given P(safe) >= 0.5 (the dangerous
-  error); None without obstacle tiles;
+  error); None without obstacle tiles; ``obstacle_passed_0.9``: the same at P(safe) >= 0.9
+  (:data:`CONFIDENT`, where a planner acts);
+* ``safe_flagged``: the share of judged safe tiles given P(safe) < 0.5 (false alarms); None
+  without safe tiles;
 * ``unjudged``: the share of labelled tiles left without a P(safe) (not observed enough, or
   outside the map).
 
@@ -43,15 +46,16 @@ import numpy as np
 from landing_zone.engines import check_engine, run_tasks
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['THRESHOLD', 'FIGURES', 'flight_task', 'score_flight', 'footprint_truth',
+__all__ = ['THRESHOLD', 'CONFIDENT', 'FIGURES', 'flight_task', 'score_flight', 'footprint_truth',
            'pooled_figures', 'evaluate_flights', 'markdown_flights']
 
 THRESHOLD = 0.5  # P(safe) from which an obstacle tile counts as passed (docs/INTERFACES.md §2)
+CONFIDENT = 0.9  # ... counts as passed confidently: what a planner acting on 0.9 lands on
 FIGURES = ('auc', 'ece', 'obstacle_passed', 'unjudged', 'site_ece', 'sites_over_obstacle')
 
 
 def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
-    """The four figures of judged tiles ``p`` with truth ``y`` out of ``labelled`` tiles."""
+    """The tile figures of judged tiles ``p`` with truth ``y`` out of ``labelled`` tiles."""
     from sklearn.metrics import roc_auc_score
 
     from landing_zone.learn.calibration import expected_calibration_error
@@ -65,6 +69,9 @@ def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
         'auc': float(roc_auc_score(y, p)) if both else None,
         'ece': expected_calibration_error(p, y) if len(p) else None,
         'obstacle_passed': float((p[unsafe] >= THRESHOLD).mean()) if unsafe.any() else None,
+        'obstacle_passed_0.9': (float((p[unsafe] >= CONFIDENT).mean()) if unsafe.any()
+                                else None),
+        'safe_flagged': float((p[~unsafe] < THRESHOLD).mean()) if (~unsafe).any() else None,
         'unjudged': 1.0 - len(p) / labelled if labelled else None,
     }
 
@@ -237,8 +244,9 @@ def markdown_flights(doc: dict[str, Any]) -> str:
         return '-' if v is None else format(v, fmt)
 
     lines = ['| flight | tiles judged | AUC | ECE | obstacle tiles at P(safe) >= 0.5 | '
-             'unjudged | sites listed over an obstacle | site ECE |',
-             '|---|---:|---:|---:|---:|---:|---:|---:|']
+             'at >= 0.9 | safe tiles flagged | unjudged | sites listed over an obstacle | '
+             'site ECE |',
+             '|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|']
     rows = [(Path(f['bag']).name, f) for f in doc['flights']] + [('**pooled**', doc['pooled'])]
     for name, f in rows:
         passed = ('-' if f['obstacle_passed'] is None else
@@ -246,6 +254,8 @@ def markdown_flights(doc: dict[str, Any]) -> str:
                   f'{f["obstacle_tiles"]})')
         lines.append(f'| {name} | {f["tiles_judged"]} of {f["tiles_labelled"]} | '
                      f'{num(f["auc"], ".3f")} | {num(f["ece"], ".3f")} | {passed} | '
+                     f'{num(f["obstacle_passed_0.9"], ".1%")} | '
+                     f'{num(f["safe_flagged"], ".1%")} | '
                      f'{num(f["unjudged"], ".1%")} | {f["sites_over_obstacle"]} of '
                      f'{f["sites_listed"]} | {num(f["site_ece"], ".3f")} |')
     return '\n'.join(lines) + '\n'
