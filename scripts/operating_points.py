@@ -82,10 +82,12 @@ def main() -> int:
           + ' | '.join(f'obstacles passed, {k:.0%} of safe kept' for k in args.keep) + ' |')
     print('|---|---|' + '---:|' * (5 + len(args.keep)))
     edge_rows = []
+    loaded = []  # (source, its methods' scores, labels, scene indices): read once
     for src in args.sources:
         got = read(src)
         if got is None:
             return 2
+        loaded.append((src, *got))
         methods, y, _ = got
         for name, p in methods.items():
             ok = np.isfinite(p)
@@ -138,23 +140,21 @@ def main() -> int:
                              f'{pct(float(np.mean(p[k] >= 0.9)) if k.any() else None)} '
                              f'of {k.sum()}')
             print(f'| {src} | {name} | ' + ' | '.join(cells) + ' |')
-    return bar(args.bar, args.sources) if args.bar is not None else 0
+    return bar(args.bar, loaded) if args.bar is not None else 0
 
 
-def bar(data: Path, srcs: list[Path]) -> int:
-    """Per score file, method and obstacle family (and pooled): the safe scenes flagged at the
-    threshold above which 2 % and 0.5 % of the family's obstacle scenes lie."""
+def bar(data: Path, loaded: list[tuple[Path, dict[str, np.ndarray], np.ndarray,
+                                       list[int] | None]]) -> int:
+    """Per score file (as :func:`read` gave it), method and obstacle family (and pooled): the
+    safe scenes flagged at the threshold above which 2 % and 0.5 % of the family's obstacle
+    scenes lie."""
     from landing_zone.learn.lofo import scene_families
     from landing_zone.sim.shards import SceneDataset
     family = np.asarray(scene_families(SceneDataset(data, 'test'))['obstacle'])
     print('\n| source | method | obstacle family | scenes | '
           + ' | '.join(f'safe flagged where {b:.1%} of obstacles pass' for b in BAR) + ' |')
     print('|---|---|---|' + '---:|' * (1 + len(BAR)))
-    for src in srcs:
-        got = read(src)
-        if got is None:
-            return 2
-        methods, y, scenes = got
+    for src, methods, y, scenes in loaded:
         if scenes is None or max(scenes) >= len(family):
             print(f'operating_points: {src}: not a score file of {data}', file=sys.stderr)
             return 2
