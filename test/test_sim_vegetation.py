@@ -80,6 +80,43 @@ def test_meadow_spans_layers_clumping_and_mats_of_blades_alone():
     assert p['layers'][tallest]['height'] != 0.3  # (the draw itself is left as it was)
 
 
+def test_forb_is_leafy_plants_on_thin_stems_within_its_ranges():
+    """The forb prior: one or two kinds of plant a patch, each within its drawn ranges
+    (5-40 cm, 1-8 stems of 2-12 leaves, rosettes in some), built as stems and flat leaves that
+    stay under the family's top, stand clear of an obstacle's disc, and come out the same for
+    the same seed; hiding an obstacle grows the tallest kind and no other."""
+    terrain = Terrain(TerrainConfig(amplitude=0.0), np.random.default_rng(0), (-2, -2), (2, 2))
+    draws = [draw_vegetation('forb', np.random.default_rng(k)) for k in range(60)]
+    forms = [f for d in draws for f in d['forms']]
+    assert {len(d['forms']) for d in draws} == {1, 2}
+    assert all(0.05 <= f['height'] <= 0.40 and 1 <= f['stems'] <= 8 and 2 <= f['leaves'] <= 12
+               and 0.02 <= f['leaf_size'] <= 0.10 and 0.002 <= f['stem_width'] <= 0.006
+               for f in forms)
+    assert any(f['rosette'] > 0.5 for f in forms) and any(f['rosette'] == 0 for f in forms)
+    # Plants alone (no grass under them), tall and many, around an obstacle at the centre.
+    p = {**draws[0], 'density': 0.0,
+         'forms': [{**draws[0]['forms'][0], 'plants': 30.0, 'height': 0.3, 'rosette': 0.5}]}
+    veg, cover, bushes = build_vegetation(p, terrain, np.random.default_rng(3), SQUARE,
+                                          keep_out=[(0.0, 0.0, 0.4)])
+    assert cover.n_faces == 0 and bushes == [] and np.all(veg.labels == GRASS)
+    assert 0.2 < float(veg.vertices[:, 2].max()) <= vegetation_top(p) + 1e-6
+    near_ground = veg.vertices[:, 2] < 0.1  # rosettes and stem feet
+    assert near_ground.any() and (~near_ground).any()
+    # No plant stands in the obstacle's disc: every stem's foot (sunk below the ground) lies
+    # outside it by no more than the plant's spread around its centre.
+    form = p['forms'][0]
+    feet = veg.vertices[veg.vertices[:, 2] < -0.004, :2]
+    assert len(feet) and np.hypot(*feet.T).min() > 0.4 - form['spread'] - form['stem_width']
+    again = build_vegetation(p, terrain, np.random.default_rng(3), SQUARE,
+                             keep_out=[(0.0, 0.0, 0.4)])[0]
+    np.testing.assert_array_equal(veg.vertices, again.vertices)
+    two = next(d for d in draws if len(d['forms']) == 2)
+    h = hide_obstacle(two, 0.3)
+    tallest = max((0, 1), key=lambda k: two['forms'][k]['height'])
+    assert h['forms'][tallest]['height'] == 0.3 and h['forms'][1 - tallest] == two['forms'][
+        1 - tallest]
+
+
 def test_dense_families_mostly_hide_the_ground():
     """At a 30 degree depression, the dense end of the blade families lets less than half of
     the rays through to the ground (most often far less)."""

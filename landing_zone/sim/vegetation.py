@@ -21,14 +21,22 @@ presence of an obstacle only.
               own density, height (3-42 cm), width, lean, curvature and clumping (none, or
               clumps of 5-400 blades 1.5-25 cm in radius: tufts to porous bunches half a metre
               across), sometimes over a flattened mat; no leaves (see below)
+``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.sim.forbs`): one or two
+              kinds a patch, 2-40 plants per m^2, 5-40 cm, one to eight thin stems each with
+              2-12 flat leaves of 2-10 cm along them or lying in a rosette at the foot, over
+              sparse to dense short grass; no canopy, nothing woody (see below)
 ============  ===================================================================================
 
 synth3 draws from the first six (:data:`SYNTH3_VEGETATION`, fixed so that its scenes stay what
-they were); ``meadow`` came after it and is drawn only when asked for (``simulate --dataset
-synth3 --vegetation meadow``). Made of blades alone, it holds nothing of ``shrub`` (leafy
-canopies), so ``shrub`` held out stays unseen with meadow in training; its clumped layers do
-cover ``tussock``'s clumps, so ``tussock`` held out no longer is. What it does as training data
-(little): ``docs/EXPERIMENTS.md``, "The meadow prior".
+they were); ``meadow`` and ``forb`` came after it and are drawn only when asked for
+(``simulate --dataset synth3 --vegetation meadow,forb``). Made of blades alone, ``meadow``
+holds nothing of ``shrub`` (leafy canopies), so ``shrub`` held out stays unseen with meadow
+in training; its clumped layers do cover ``tussock``'s clumps, so ``tussock`` held out no
+longer is. What it does as training data
+(little): ``docs/EXPERIMENTS.md``, "The meadow prior". ``forb`` is leaves on stems, not a
+canopy: it shares leaves with ``shrub`` but not its shape (a rounded volume of leaves up to
+70 cm across), so ``shrub`` held out with ``forb`` in training is a shape never seen made of a
+material seen; what that does: ``docs/EXPERIMENTS.md``, "The forb prior".
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
@@ -45,6 +53,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from landing_zone.errors import SimulationError
+from landing_zone.sim.forbs import ForbForm, forb_mesh, forb_top
 from landing_zone.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
                                     bush_mesh, place_bushes, points_in_polygon,
                                     vegetation_blades)
@@ -128,10 +137,26 @@ def _draw_meadow(rng: np.random.Generator) -> dict[str, Any]:
     return {'layers': layers, 'mat': mat}
 
 
+def _draw_forb(rng: np.random.Generator) -> dict[str, Any]:
+    forms = []
+    for _ in range(int(rng.integers(1, 3))):
+        forms.append({
+            'plants': round(_log_u(rng, 2.0, 40.0), 2), 'height': _u(rng, 0.05, 0.40),
+            'height_cv': _u(rng, 0.1, 0.35), 'spread': round(_log_u(rng, 0.01, 0.2), 4),
+            'stems': int(rng.integers(1, 9)), 'leaves': int(rng.integers(2, 13)),
+            'leaf_size': _u(rng, 0.02, 0.10), 'leaf_tilt': _u(rng, -10.0, 70.0),
+            'leaf_bias': round(_log_u(rng, 0.25, 4.0), 3),
+            'rosette': _u(rng, 0.0, 1.0) if rng.uniform() < 0.5 else 0.0,
+            'stem_lean': _u(rng, 0.0, 30.0), 'stem_width': _u(rng, 0.002, 0.006)})
+    # The grass under the plants, sparse to dense.
+    return {'density': round(_log_u(rng, 50.0, 2500.0), 1), 'height': _u(rng, 0.03, 0.15),
+            'width': _u(rng, 0.003, 0.006), 'lean': _u(rng, 10, 30), 'forms': forms}
+
+
 _DRAW: dict[str, Callable[[np.random.Generator], dict[str, Any]]] = {
     'uniform': _draw_uniform, 'tussock': _draw_tussock, 'lodged': _draw_lodged,
     'layered': _draw_layered, 'bare': _draw_bare, 'shrub': _draw_shrub,
-    'meadow': _draw_meadow}
+    'meadow': _draw_meadow, 'forb': _draw_forb}
 VEGETATION_FAMILIES = tuple(_DRAW)
 SYNTH3_VEGETATION = VEGETATION_FAMILIES[:6]  # what synth3 draws unless told (fixed)
 
@@ -187,6 +212,10 @@ def vegetation_top(params: dict[str, Any]) -> float:
         if params['mat'] is not None:
             tops.append(_blade_top(params['mat']['height'], 0.3))
         return max(tops)
+    if fam == 'forb':
+        return max([_blade_top(params['height'])]
+                   + [forb_top(ForbForm.from_dict(f), MAX_VEGETATION_HEIGHT)
+                      for f in params['forms']])
     return _blade_top(params['height'])
 
 
@@ -196,9 +225,16 @@ def _blade_top(mean: float, spread: float = 0.25) -> float:
 
 def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
     """The same vegetation grown to hide an obstacle ``height`` high: its (tall) blades' mean
-    height set to it, within the family's range (meadow: its tallest layer's). Families that
-    cannot hide anything (lodged, bare, shrub) are returned unchanged."""
+    height set to it, within the family's range (meadow: its tallest layer's; forb: its
+    tallest plants'). Families that cannot hide anything (lodged, bare, shrub) are returned
+    unchanged."""
     out = dict(params)
+    if params['family'] == 'forb':
+        forms = [dict(f) for f in params['forms']]
+        tallest = max(range(len(forms)), key=lambda k: forms[k]['height'])
+        forms[tallest]['height'] = round(float(np.clip(height, 0.08, 0.40)), 4)
+        out['forms'] = forms
+        return out
     if params['family'] == 'meadow':
         layers = [dict(layer) for layer in params['layers']]
         tallest = max(range(len(layers)), key=lambda k: layers[k]['height'])
@@ -240,7 +276,7 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
     parts: list[Mesh] = []
     cover = Mesh.empty()
     bushes: list[Bush] = []
-    if fam in ('uniform', 'tussock', 'layered', 'bare', 'shrub'):
+    if fam in ('uniform', 'tussock', 'layered', 'bare', 'shrub', 'forb'):
         cfg = VegetationConfig(
             blade_width=params.get('width', 0.004), inclination_std=params.get('lean', 15.0),
             clump_size=params.get('clump_size', 0.0),
@@ -268,6 +304,11 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
                                            rng, polygon, density_scale, height_scale))
         if params['mat'] is not None:
             parts.append(_lodged(params['mat'], terrain, rng, polygon, density_scale))
+    if fam == 'forb':
+        for form in params['forms']:
+            parts.append(forb_mesh(ForbForm.from_dict(form), terrain, rng, polygon,
+                                   MAX_VEGETATION_HEIGHT, list(keep_out), density_scale,
+                                   height_scale))
     if fam == 'bare':
         cover = Mesh.concat([_gravel(params, terrain, rng, polygon),
                              _debris(params, terrain, rng, polygon)])
