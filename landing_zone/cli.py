@@ -783,7 +783,8 @@ def simulate(
              'in the next tile); such a dataset shares no draw with the default one.')] = 0.0,
     vegetation: Annotated[Optional[str], typer.Option(
         help='synth3: draw the vegetation from these families, comma separated (e.g. meadow, '
-             'the continuous prior of blade layers; forb, broadleaf plants; or uniform,lodged) '
+             'the continuous prior of blade layers; forb, broadleaf plants; canopy, leafy crowns; '
+             'or uniform,lodged) '
              'instead of synth3\'s six; '
              'such a dataset shares no draw with the default one.')] = None,
 ) -> None:
@@ -863,8 +864,8 @@ def simulate_flight(
     vegetation: Annotated[str, typer.Option(
         help='Vegetation preset: default (the training sets\' grass), clumped, tall, bushy, '
              'mixed; or a vegetation family: uniform, tussock, lodged, layered, bare '
-             '(gravel), shrub (synth3\'s six), meadow (the prior of blade layers), forb '
-             '(broadleaf plants).')] = 'default',
+             '(gravel), shrub (synth3\'s six); the priors meadow (blade layers), forb '
+             '(broadleaf plants), canopy (leafy crowns).')] = 'default',
     grass_density: Annotated[Optional[float], typer.Option(
         help='Blades per m^2 of a typical patch [default: 600].')] = None,
     grass_height: Annotated[Optional[float], typer.Option(

@@ -117,6 +117,37 @@ def test_forb_is_leafy_plants_on_thin_stems_within_its_ranges():
         1 - tallest]
 
 
+def test_canopy_is_leafy_crowns_of_many_shapes_up_to_safe_shrub_height():
+    """The canopy prior: crowns 10 cm to 1 m across of one to five lobes, never above the
+    height a shrub counts as safe at, leaves over thin twigs, clear of an obstacle's disc, the
+    same for the same seed; one stands in the tile when the draw says so."""
+    terrain = Terrain(TerrainConfig(amplitude=0.0), np.random.default_rng(0), (-2, -2), (2, 2))
+    draws = [draw_vegetation('canopy', np.random.default_rng(k)) for k in range(80)]
+    assert min(d['crown_width'][0] for d in draws) < 0.15
+    assert max(d['crown_width'][1] for d in draws) > 0.8
+    assert {d['lobes'] for d in draws} == {1, 2, 3, 4, 5}
+    assert all(d['crown_height'][1] <= SAFE_SHRUB_HEIGHT and d['twig_width'] <= 0.008
+               for d in draws)
+    assert any(d['lift'] > 0 for d in draws) and any(d['in_tile'] for d in draws)
+    p = {**draws[0], 'density': 0.0, 'crowns': 3.0, 'crown_width': [0.3, 0.5],
+         'crown_height': [0.25, 0.3], 'leaf_density': 8.0, 'in_tile': False}
+    veg, cover, bushes = build_vegetation(p, terrain, np.random.default_rng(4), SQUARE,
+                                          keep_out=[(0.0, 0.0, 0.3)])
+    assert cover.n_faces == 0 and bushes == [] and np.all(veg.labels == GRASS)
+    assert 0.2 < float(veg.vertices[:, 2].max()) <= vegetation_top(p) + 1e-6
+    # Leaves and twigs stay out of the disc: a crown's centre is half its width clear of it,
+    # and nothing of it reaches more than half its width from its centre.
+    assert np.hypot(*veg.vertices[:, :2].T).min() > 0.3 - 0.5 * 0.1
+    again = build_vegetation(p, terrain, np.random.default_rng(4), SQUARE,
+                             keep_out=[(0.0, 0.0, 0.3)])[0]
+    np.testing.assert_array_equal(veg.vertices, again.vertices)
+    # Crowns too few to meet the tile, but one asked for in it: leaves there, every time.
+    sparse = {**p, 'crowns': 0.001, 'in_tile': True}
+    for k in range(5):
+        m = build_vegetation(sparse, terrain, np.random.default_rng(k), SQUARE, tile=TILE)[0]
+        assert m.n_faces > 0 and np.abs(m.vertices[:, :2]).max() < 0.5 + 0.25 + 0.05
+
+
 def test_dense_families_mostly_hide_the_ground():
     """At a 30 degree depression, the dense end of the blade families lets less than half of
     the rays through to the ground (most often far less)."""

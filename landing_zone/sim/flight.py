@@ -204,7 +204,7 @@ def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
     Args:
         vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of
             grass) or a vegetation family (:data:`VEGETATION_FAMILIES`: synth3's six and
-            the meadow and forb priors).
+            the meadow, forb and canopy priors).
         scan_pattern: one of :data:`SCAN`.
         density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
         **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,

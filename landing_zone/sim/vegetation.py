@@ -21,22 +21,28 @@ presence of an obstacle only.
               own density, height (3-42 cm), width, lean, curvature and clumping (none, or
               clumps of 5-400 blades 1.5-25 cm in radius: tufts to porous bunches half a metre
               across), sometimes over a flattened mat; no leaves (see below)
-``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.sim.forbs`): one or two
+``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.sim.leafy`): one or two
               kinds a patch, 2-40 plants per m^2, 5-40 cm, one to eight thin stems each with
               2-12 flat leaves of 2-10 cm along them or lying in a rosette at the foot, over
               sparse to dense short grass; no canopy, nothing woody (see below)
+``canopy``    a prior of leafy crowns (:mod:`landing_zone.sim.leafy`): 0.3-4 a m^2, 8-35 cm
+              high, 10 cm to 1 m across, one to five lobes (domes, cushions, lumpy clusters,
+              crowns lifted on bare stems), 2-12 m^2 of leaves per m^3 of 2-8 cm leaves over
+              0-12 twigs of 2-8 mm, over short grass; one in the tile in half the scenes
 ============  ===================================================================================
 
 synth3 draws from the first six (:data:`SYNTH3_VEGETATION`, fixed so that its scenes stay what
-they were); ``meadow`` and ``forb`` came after it and are drawn only when asked for
-(``simulate --dataset synth3 --vegetation meadow,forb``). Made of blades alone, ``meadow``
-holds nothing of ``shrub`` (leafy canopies), so ``shrub`` held out stays unseen with meadow
-in training; its clumped layers do cover ``tussock``'s clumps, so ``tussock`` held out no
-longer is. What it does as training data
-(little): ``docs/EXPERIMENTS.md``, "The meadow prior". ``forb`` is leaves on stems, not a
-canopy: it shares leaves with ``shrub`` but not its shape (a rounded volume of leaves up to
-70 cm across), so ``shrub`` held out with ``forb`` in training is a shape never seen made of a
-material seen; what that does: ``docs/EXPERIMENTS.md``, "The forb prior".
+they were); the priors ``meadow``, ``forb`` and ``canopy`` came after it and are drawn only
+when asked for (``simulate --dataset synth3 --vegetation meadow,forb``). Made of blades alone,
+``meadow`` holds nothing of ``shrub`` (leafy canopies), so ``shrub`` held out stays unseen with
+meadow in training; its clumped layers do cover ``tussock``'s clumps, so ``tussock`` held out
+no longer is (what it does as training data, little: ``docs/EXPERIMENTS.md``, "The meadow
+prior"). ``forb`` is leaves on stems, not a canopy: it shares leaves with ``shrub`` but not
+its shape (a rounded volume of leaves up to 70 cm across), so ``shrub`` held out with ``forb``
+in training is a shape never seen made of a material seen. ``canopy`` spans ``shrub``'s shapes
+(one dome 15-35 cm high, 0.3-0.7 m across) among many others: with it in training, ``shrub``
+held out is covered, not unseen, as ``tussock`` is by ``meadow``. What both do:
+``docs/EXPERIMENTS.md``, "Leafy priors".
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
@@ -53,7 +59,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from landing_zone.errors import SimulationError
-from landing_zone.sim.forbs import ForbForm, forb_mesh, forb_top
+from landing_zone.sim.leafy import (CrownForm, ForbForm, crown_mesh, crown_top, forb_mesh,
+                                    forb_top)
 from landing_zone.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
                                     bush_mesh, place_bushes, points_in_polygon,
                                     vegetation_blades)
@@ -153,10 +160,25 @@ def _draw_forb(rng: np.random.Generator) -> dict[str, Any]:
             'width': _u(rng, 0.003, 0.006), 'lean': _u(rng, 10, 30), 'forms': forms}
 
 
+def _draw_canopy(rng: np.random.Generator) -> dict[str, Any]:
+    lo = _u(rng, 0.08, 0.25)
+    narrow = round(_log_u(rng, 0.1, 0.5), 3)
+    return {'density': round(_log_u(rng, 50.0, 2500.0), 1), 'height': _u(rng, 0.03, 0.15),
+            'width': _u(rng, 0.003, 0.006), 'lean': _u(rng, 10, 30),
+            'crowns': round(_log_u(rng, 0.3, 4.0), 3),
+            'crown_height': [lo, _u(rng, lo, SAFE_SHRUB_HEIGHT)],
+            'crown_width': [narrow, round(_log_u(rng, narrow, 1.0), 3)],
+            'lobes': int(rng.integers(1, 6)),
+            'lift': _u(rng, 0.0, 0.5) if rng.uniform() < 0.3 else 0.0,
+            'leaf_density': round(_log_u(rng, 2.0, 12.0), 2), 'leaf_size': _u(rng, 0.02, 0.08),
+            'twigs': int(rng.integers(0, 13)), 'twig_width': _u(rng, 0.002, 0.008),
+            'in_tile': bool(rng.uniform() < 0.5)}
+
+
 _DRAW: dict[str, Callable[[np.random.Generator], dict[str, Any]]] = {
     'uniform': _draw_uniform, 'tussock': _draw_tussock, 'lodged': _draw_lodged,
     'layered': _draw_layered, 'bare': _draw_bare, 'shrub': _draw_shrub,
-    'meadow': _draw_meadow, 'forb': _draw_forb}
+    'meadow': _draw_meadow, 'forb': _draw_forb, 'canopy': _draw_canopy}
 VEGETATION_FAMILIES = tuple(_DRAW)
 SYNTH3_VEGETATION = VEGETATION_FAMILIES[:6]  # what synth3 draws unless told (fixed)
 
@@ -216,6 +238,8 @@ def vegetation_top(params: dict[str, Any]) -> float:
         return max([_blade_top(params['height'])]
                    + [forb_top(ForbForm.from_dict(f), MAX_VEGETATION_HEIGHT)
                       for f in params['forms']])
+    if fam == 'canopy':
+        return max(_blade_top(params['height']), crown_top(_crowns(params)))
     return _blade_top(params['height'])
 
 
@@ -276,7 +300,7 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
     parts: list[Mesh] = []
     cover = Mesh.empty()
     bushes: list[Bush] = []
-    if fam in ('uniform', 'tussock', 'layered', 'bare', 'shrub', 'forb'):
+    if fam in ('uniform', 'tussock', 'layered', 'bare', 'shrub', 'forb', 'canopy'):
         cfg = VegetationConfig(
             blade_width=params.get('width', 0.004), inclination_std=params.get('lean', 15.0),
             clump_size=params.get('clump_size', 0.0),
@@ -309,6 +333,15 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
             parts.append(forb_mesh(ForbForm.from_dict(form), terrain, rng, polygon,
                                    MAX_VEGETATION_HEIGHT, list(keep_out), density_scale,
                                    height_scale))
+    if fam == 'canopy':
+        crowns = _crowns(params)
+        parts.append(crown_mesh(crowns, terrain, rng, polygon, list(keep_out), density_scale,
+                                height_scale))
+        if params.get('in_tile') and tile is not None:
+            # One more whose centre lies in the tile, unless the obstacle leaves no room.
+            lo, hi = (np.asarray(c, float) for c in tile)
+            square = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+            parts.append(crown_mesh(crowns, terrain, rng, square, list(keep_out), count=1))
     if fam == 'bare':
         cover = Mesh.concat([_gravel(params, terrain, rng, polygon),
                              _debris(params, terrain, rng, polygon)])
@@ -327,6 +360,14 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
             bushes += one[:1] if one else []
         parts.append(bush_mesh(cfg, bushes, rng))
     return Mesh.concat(parts), cover, bushes
+
+
+def _crowns(params: dict[str, Any]) -> CrownForm:
+    return CrownForm(crowns=params['crowns'], height=tuple(params['crown_height']),
+                     width=tuple(params['crown_width']), lobes=params['lobes'],
+                     lift=params['lift'],
+                     leaf_density=params['leaf_density'], leaf_size=params['leaf_size'],
+                     twigs=params['twigs'], twig_width=params['twig_width'])
 
 
 def _lodged(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
