@@ -253,17 +253,14 @@ def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
     tallest plants'). Families that cannot hide anything (lodged, bare, shrub) are returned
     unchanged."""
     out = dict(params)
-    if params['family'] == 'forb':
-        forms = [dict(f) for f in params['forms']]
-        tallest = max(range(len(forms)), key=lambda k: forms[k]['height'])
-        forms[tallest]['height'] = round(float(np.clip(height, 0.08, 0.40)), 4)
-        out['forms'] = forms
-        return out
-    if params['family'] == 'meadow':
-        layers = [dict(layer) for layer in params['layers']]
-        tallest = max(range(len(layers)), key=lambda k: layers[k]['height'])
-        layers[tallest]['height'] = round(float(np.clip(height, 0.08, 0.42)), 4)
-        out['layers'] = layers
+    # The priors' lists of parts (meadow's layers, forb's kinds of plant): the tallest grows.
+    lists = {'meadow': ('layers', 0.42), 'forb': ('forms', 0.40)}
+    if params['family'] in lists:
+        parts, top = lists[params['family']]
+        grown = [dict(p) for p in params[parts]]
+        tallest = max(range(len(grown)), key=lambda k: grown[k]['height'])
+        grown[tallest]['height'] = round(float(np.clip(height, 0.08, top)), 4)
+        out[parts] = grown
         return out
     key = {'uniform': 'height', 'tussock': 'height', 'layered': 'tall_height'}.get(
         params['family'])
