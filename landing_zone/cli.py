@@ -784,8 +784,7 @@ def simulate(
     vegetation: Annotated[Optional[str], typer.Option(
         help='synth3: draw the vegetation from these families, comma separated (e.g. meadow, '
              'the continuous prior of blade layers; forb, broadleaf plants; canopy, leafy crowns; '
-             'or uniform,lodged) '
-             'instead of synth3\'s six; '
+             'or uniform,lodged) instead of synth3\'s six; '
              'such a dataset shares no draw with the default one.')] = None,
 ) -> None:
     from landing_zone.engines import check_engine

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -54,10 +53,6 @@ class ForbForm:
     rosette: float  # share of a plant's leaves that lie in a rosette at its foot
     stem_lean: float  # standard deviation of a stem's lean from the vertical [deg]
     stem_width: float  # [m]
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> 'ForbForm':
-        return cls(**{k: d[k] for k in cls.__dataclass_fields__})
 
 
 def forb_top(form: ForbForm, limit: float) -> float:

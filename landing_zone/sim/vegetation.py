@@ -236,7 +236,7 @@ def vegetation_top(params: dict[str, Any]) -> float:
         return max(tops)
     if fam == 'forb':
         return max([_blade_top(params['height'])]
-                   + [forb_top(ForbForm.from_dict(f), MAX_VEGETATION_HEIGHT)
+                   + [forb_top(ForbForm(**f), MAX_VEGETATION_HEIGHT)
                       for f in params['forms']])
     if fam == 'canopy':
         return max(_blade_top(params['height']), crown_top(_crowns(params)))
@@ -250,8 +250,8 @@ def _blade_top(mean: float, spread: float = 0.25) -> float:
 def hide_obstacle(params: dict[str, Any], height: float) -> dict[str, Any]:
     """The same vegetation grown to hide an obstacle ``height`` high: its (tall) blades' mean
     height set to it, within the family's range (meadow: its tallest layer's; forb: its
-    tallest plants'). Families that cannot hide anything (lodged, bare, shrub) are returned
-    unchanged."""
+    tallest plants'). Families that cannot hide anything (lodged, bare, shrub, canopy) are
+    returned unchanged."""
     out = dict(params)
     # The priors' lists of parts (meadow's layers, forb's kinds of plant): the tallest grows.
     lists = {'meadow': ('layers', 0.42), 'forb': ('forms', 0.40)}
@@ -327,7 +327,7 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
             parts.append(_lodged(params['mat'], terrain, rng, polygon, density_scale))
     if fam == 'forb':
         for form in params['forms']:
-            parts.append(forb_mesh(ForbForm.from_dict(form), terrain, rng, polygon,
+            parts.append(forb_mesh(ForbForm(**form), terrain, rng, polygon,
                                    MAX_VEGETATION_HEIGHT, list(keep_out), density_scale,
                                    height_scale))
     if fam == 'canopy':
