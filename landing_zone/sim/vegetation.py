@@ -336,9 +336,8 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
                                 height_scale))
         if params.get('in_tile') and tile is not None:
             # One more whose centre lies in the tile, unless the obstacle leaves no room.
-            lo, hi = (np.asarray(c, float) for c in tile)
-            square = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
-            parts.append(crown_mesh(crowns, terrain, rng, square, list(keep_out), count=1))
+            parts.append(crown_mesh(crowns, terrain, rng, _square(tile), list(keep_out),
+                                    count=1))
     if fam == 'bare':
         cover = Mesh.concat([_gravel(params, terrain, rng, polygon),
                              _debris(params, terrain, rng, polygon)])
@@ -350,13 +349,16 @@ def build_vegetation(params: dict[str, Any], terrain: Terrain, rng: np.random.Ge
         bushes = place_bushes(cfg, terrain, rng, polygon, list(keep_out))
         if params.get('in_tile') and tile is not None:
             # One more whose centre lies in the tile, unless the obstacle leaves no room.
-            lo, hi = (np.asarray(c, float) for c in tile)
-            one = place_bushes(cfg, terrain, rng, np.array(
-                [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]]),
-                list(keep_out))
+            one = place_bushes(cfg, terrain, rng, _square(tile), list(keep_out))
             bushes += one[:1] if one else []
         parts.append(bush_mesh(cfg, bushes, rng))
     return Mesh.concat(parts), cover, bushes
+
+
+def _square(tile: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """The tile's corners ``(lo, hi)`` as a counter-clockwise polygon."""
+    lo, hi = (np.asarray(c, float) for c in tile)
+    return np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
 
 
 def _crowns(params: dict[str, Any]) -> CrownForm:
