@@ -20,25 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from guard_eval import workdir_tiles  # scripts/ is this script's first import path
+
 from landing_zone.learn.calibration import reliability
 
 BINS = 10
-
-
-def tiles_of(workdirs: list[Path], key: str) -> tuple[np.ndarray, np.ndarray]:
-    """P(safe) ``key`` and ground truth (1 safe) of every judged tile of the flights kept in
-    ``workdirs`` (a flight's result is ``NAME_SEED.json``; its labels sit beside it)."""
-    p, y = [], []
-    for wd in workdirs:
-        results = sorted(f for f in wd.glob('*.json') if not f.name.endswith('.labels.json'))
-        if not results:
-            raise SystemExit(f'flight_reliability: no flight results in {wd}')
-        for f in results:
-            for t in json.loads(f.read_text())['tiles']:
-                if t[key] is not None:
-                    p.append(float(t[key]))
-                    y.append(1.0 if t['safe'] else 0.0)
-    return np.asarray(p), np.asarray(y)
 
 
 def main() -> int:
@@ -47,7 +33,12 @@ def main() -> int:
     ap.add_argument('--key', default='p_safe', choices=('p_net', 'p_guard', 'p_safe'))
     ap.add_argument('--json', type=Path, default=None, help='write the figures here')
     args = ap.parse_args()
-    p, y = tiles_of(args.workdirs, args.key)
+    try:
+        tiles = [workdir_tiles(wd, args.key) for wd in args.workdirs]
+    except (OSError, ValueError, KeyError) as err:
+        print(f'flight_reliability: {err}', file=sys.stderr)
+        return 2
+    p, y = (np.concatenate(parts) for parts in zip(*tiles))
     rel = reliability(p, y, BINS)
     print(f'{len(p)} tiles judged ({args.key}), {y.mean():.1%} of them safe; mean P(safe) '
           f'{p.mean():.3f}; ECE {rel.ece:.3f}')

@@ -257,6 +257,23 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
     return doc
 
 
+def workdir_tiles(work: Path, key: str = 'p_safe') -> tuple[np.ndarray, np.ndarray]:
+    """P(safe) ``key`` (``p_net``, ``p_guard`` or ``p_safe``) and ground truth (1 safe) of
+    every judged tile of the flights kept in ``work`` (``NAME_SEED.json`` per flight, as
+    :func:`run_flight` writes them), pooled; the reader of this script's results for
+    ``flight_reliability.py`` and ``operating_points.py``."""
+    p, y = [], []
+    results = sorted(f for f in work.glob('*_[0-9]*.json') if not f.name.endswith('.labels.json'))
+    if not results:
+        raise ValueError(f'no flight results (NAME_SEED.json) in {work}')
+    for f in results:
+        for t in json.loads(f.read_text())['tiles']:
+            if t[key] is not None:
+                p.append(float(t[key]))
+                y.append(1.0 if t['safe'] else 0.0)
+    return np.asarray(p), np.asarray(y)
+
+
 def _obstacle_tiles(obstacles: list[dict[str, Any]]
                     ) -> tuple[dict[tuple[float, float], list[str]], set[tuple[float, float]]]:
     """Per tile the kinds of the obstacles over it (a test shape's kind is the first word of

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from guard_eval import workdir_tiles  # scripts/ is this script's first import path
+
 BANDS = ((0.0, 0.1), (0.1, 0.2), (0.2, 0.3))  # [m] gap / reach bands of the edge pairs
 BAR = (0.02, 0.005)  # issue 15: obstacle tiles passed at 0.5 and at 0.9, at most
 
@@ -38,15 +40,8 @@ BAR = (0.02, 0.005)  # issue 15: obstacle tiles passed at 0.5 and at 0.9, at mos
 def sources(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, list[int] | None]:
     """Per method the scores, the labels (1 safe) and the scenes' indices (None: flights)."""
     if path.is_dir():  # guard_eval workdir: NAME_SEED.json per flight
-        p, y = [], []
-        for f in sorted(path.glob('*_[0-9]*.json')):
-            if f.name.endswith('.labels.json'):
-                continue
-            for t in json.loads(f.read_text())['tiles']:
-                if t['p_safe'] is not None:
-                    p.append(t['p_safe'])
-                    y.append(int(t['safe']))
-        return {'net + guard + OOD': np.asarray(p, float)}, np.asarray(y), None
+        p, y = workdir_tiles(path)
+        return {'net + guard + OOD': p}, y.astype(int), None
     doc = json.loads(path.read_text())
     return ({m: np.asarray(s, float) for m, s in doc['methods'].items()},
             np.asarray(doc['labels']), doc.get('scenes'))
