@@ -24,13 +24,15 @@ is about solid obstacles of 15-50 cm, even hidden in grass). With ``--lofo RESUL
 (``evaluate --by-family --json`` of the same run) each scene is scored instead by the model
 that never saw its obstacle family (the 'lofo' table's model), as the headline table is; with
 ``--lofo-axis vegetation``, by the model that never saw its vegetation family.
-``--vegetation F...`` keeps the scenes in those vegetation families::
+``--vegetation F...`` keeps the scenes in those vegetation families. ``--matched F1 F2`` judges at
+the thresholds that flag those shares of the safe scenes instead of at 0.5 and 0.9: the ranking
+of models calibrated differently, side by side::
 
     landing-zone evaluate --data DIR --by-family --model M [--model FOLD...] \\
         --json results.json --scores scores.json
     python scripts/pass_breakdown.py DIR scores.json [--method NAME | --lofo results.json \\
         [--lofo-axis vegetation]] [--families F... | --exclude F...] [--vegetation F...] \\
-        [--max-height M] [--json breakdown.json]
+        [--max-height M] [--matched F1 F2] [--json breakdown.json]
 """
 from __future__ import annotations
 
@@ -115,23 +117,30 @@ def groups(params: dict[str, Any], evidence: tuple[int, float] | None = None
     }
 
 
-def shares(p: np.ndarray) -> dict[str, Any]:
+THRESHOLDS = (0.5, 0.9)  # P(safe) from which an obstacle scene counts as passed (confidently)
+
+
+def shares(p: np.ndarray, at: tuple[float, float] = THRESHOLDS) -> dict[str, Any]:
+    """How many scores ``p``, and the shares of them at or above the thresholds ``at``
+    (keyed 'ge_0.5' and 'ge_0.9' whatever ``at`` is: the first and the second threshold)."""
     return {'n': int(len(p)),
-            'ge_0.5': float(np.mean(p >= 0.5)) if len(p) else None,
-            'ge_0.9': float(np.mean(p >= 0.9)) if len(p) else None}
+            'ge_0.5': float(np.mean(p >= at[0])) if len(p) else None,
+            'ge_0.9': float(np.mean(p >= at[1])) if len(p) else None}
 
 
-def breakdown(p: np.ndarray, rows: list[dict[str, str]], tall: np.ndarray
-              ) -> dict[str, Any]:
-    """Per axis and group: the shares of all obstacle scenes and of those exposed >= 15 cm."""
-    out: dict[str, Any] = {'all': {'all': {'all': shares(p),
-                                           'exposed >= 15 cm': shares(p[tall])}}}
+def breakdown(p: np.ndarray, rows: list[dict[str, str]], tall: np.ndarray,
+              at: tuple[float, float] = THRESHOLDS) -> dict[str, Any]:
+    """Per axis and group: the shares of all obstacle scenes and of those exposed >= 15 cm
+    at or above the thresholds ``at``."""
+    out: dict[str, Any] = {'all': {'all': {'all': shares(p, at),
+                                           'exposed >= 15 cm': shares(p[tall], at)}}}
     for axis in rows[0]:
         names = np.array([r[axis] for r in rows], dtype=object)
         out[axis] = {}
         for g in sorted(set(names), key=_order):
             sel = names == g
-            out[axis][g] = {'all': shares(p[sel]), 'exposed >= 15 cm': shares(p[sel & tall])}
+            out[axis][g] = {'all': shares(p[sel], at),
+                            'exposed >= 15 cm': shares(p[sel & tall], at)}
     return out
 
 
@@ -148,12 +157,13 @@ def _order(g: str) -> tuple[float, str]:
         return (0.0, g)
 
 
-def markdown(report: dict[str, Any]) -> str:
+def markdown(report: dict[str, Any], heads: tuple[str, str] = ('P(safe) >= 0.5', '>= 0.9')
+             ) -> str:
     def pct(v: float | None) -> str:
         return '-' if v is None else f'{100 * v:.1f} %'
 
-    lines = ['| group | obstacle scenes | P(safe) >= 0.5 | >= 0.9 | of them exposed >= 15 cm '
-             '| >= 0.5 | >= 0.9 |', '|---|---:|---:|---:|---:|---:|---:|']
+    lines = [f'| group | obstacle scenes | {heads[0]} | {heads[1]} | of them exposed >= 15 cm '
+             f'| {heads[0]} | {heads[1]} |', '|---|---:|---:|---:|---:|---:|---:|']
     for axis, per in report.items():
         for g, v in per.items():
             a, t = v['all'], v['exposed >= 15 cm']
@@ -187,8 +197,14 @@ def main() -> None:
                     help='leave these obstacle families out (e.g. coil: see-through, not solid)')
     ap.add_argument('--max-height', type=float, default=math.inf,
                     help='only obstacles exposed less than this [m] (0.5: the bar\'s 15-50 cm)')
+    ap.add_argument('--matched', type=float, nargs=2, default=None, metavar=('F1', 'F2'),
+                    help='judge at the thresholds that flag these shares of the safe scenes '
+                         '(e.g. 0.05 0.2) instead of at P(safe) 0.5 and 0.9: the ranking of '
+                         'models calibrated differently, compared at matched false alarms')
     ap.add_argument('--json', type=Path, default=None)
     args = ap.parse_args()
+    if args.matched is not None and args.lofo is not None:
+        raise SystemExit('pass_breakdown: --matched takes the scores of one method, not --lofo')
     doc = json.loads(args.scores.read_text())
     ds = SceneDataset(args.data, doc['split'])
     scenes = np.asarray(doc['scenes'], np.int64)
@@ -224,12 +240,19 @@ def main() -> None:
                              f'{", ".join(methods)}')
         p = np.asarray(methods[name], np.float64)[keep]
         scored_by = name
+    at, heads = THRESHOLDS, ('P(safe) >= 0.5', '>= 0.9')
+    if args.matched is not None:
+        safe = np.asarray(methods[name], np.float64)[labels == 1]
+        at = (float(np.quantile(safe, args.matched[0])), float(np.quantile(safe, args.matched[1])))
+        heads = (f'{args.matched[0]:.0%} flagged', f'{args.matched[1]:.0%} flagged')
+        scored_by += (f'; thresholds {at[0]:.3f} / {at[1]:.3f} flag {args.matched[0]:.0%} / '
+                      f'{args.matched[1]:.0%} of the {len(safe)} safe scenes')
     rows = [groups(params[k], evidence[k]) for k in keep]
     tall = np.array([exposed_height(params[k]) >= BAR_HEIGHT for k in keep])
-    report = breakdown(p, rows, tall)
+    report = breakdown(p, rows, tall, at)
     print(f'{len(keep)} obstacle scenes of {args.data} ({doc["split"]}), scored by '
           f'{scored_by}\n')
-    print(markdown(report), end='')
+    print(markdown(report, heads), end='')
     if args.json is not None:
         args.json.write_text(json.dumps({'data': str(args.data), 'scored_by': scored_by,
                                          'breakdown': report}, indent=1) + '\n',
