@@ -255,7 +255,8 @@ def main() -> None:
     print(markdown(report, heads), end='')
     if args.json is not None:
         args.json.write_text(json.dumps({'data': str(args.data), 'scored_by': scored_by,
-                                         'breakdown': report}, indent=1) + '\n',
+                                         'thresholds': list(at), 'breakdown': report},
+                                        indent=1) + '\n',
                              encoding='utf-8')
 
 
