@@ -27,7 +27,7 @@ from landing_zone.errors import SimulationError
 from landing_zone.sim.mesh import GRASS, Mesh
 from landing_zone.sim.terrain import Terrain
 
-__all__ = ['GrassConfig', 'grass_mesh', 'points_in_polygon', 'VEGETATION_PRESETS',
+__all__ = ['GrassConfig', 'grass_mesh', 'points_in_polygon', 'scatter', 'VEGETATION_PRESETS',
            'VegetationConfig', 'Bush', 'clumped_bases', 'blade_strips', 'vegetation_blades',
            'place_bushes', 'bush_mesh']
 
@@ -78,6 +78,23 @@ def points_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return inside
 
 
+def scatter(rate: float, polygon: np.ndarray, rng: np.random.Generator,
+            count: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points of a homogeneous Poisson process of ``rate`` per m^2 over the bounding box of a
+    convex (K, 2) polygon (or ``count`` uniform points there), and which of them lie inside it.
+
+    Draws the number of points, then the points, nothing else: the vegetation's meshes depend on
+    that order for same-seed-same-bytes (what a caller draws per point comes after).
+
+    Returns:
+        (n, 2) points and an (n,) mask of those inside the polygon.
+    """
+    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
+    n = rng.poisson(rate * float(np.prod(hi - lo))) if count is None else count
+    xy = lo + (hi - lo) * rng.random((n, 2))
+    return xy, points_in_polygon(xy, polygon)
+
+
 def _polygon_area(polygon: np.ndarray) -> float:
     x, y = polygon[:, 0], polygon[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
@@ -92,13 +109,9 @@ def _poisson_blades(config: GrassConfig, rng: np.random.Generator, polygon: np.n
     it for same-seed-same-bytes, and a flight with other vegetation replays it to keep the rest
     of its site (obstacles, noise) the same.
     """
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    # Homogeneous Poisson process on the bounding box, restricted to the polygon.
-    n = rng.poisson(config.density * float(np.prod(hi - lo)))
-    xy = lo + (hi - lo) * rng.random((n, 2))
-    keep = points_in_polygon(xy, polygon)
+    xy, keep = scatter(config.density, polygon, rng)
     if density_scale is not None:
-        keep &= rng.random(n) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
+        keep &= rng.random(len(xy)) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
     xy = xy[keep]
     n = len(xy)
     if n == 0:
@@ -365,12 +378,9 @@ def vegetation_blades(config: VegetationConfig, density: float, height_mean: flo
         xy, centre = clumped_bases(density, config.clump_size, config.clump_radius, rng,
                                    polygon, density_scale)
     else:
-        lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-        n = rng.poisson(density * float(np.prod(hi - lo)))
-        xy = lo + (hi - lo) * rng.random((n, 2))
-        keep = points_in_polygon(xy, polygon)
+        xy, keep = scatter(density, polygon, rng)
         if density_scale is not None:
-            keep &= rng.random(n) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
+            keep &= rng.random(len(xy)) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
         xy, centre = xy[keep], None
     n = len(xy)
     if n == 0:
@@ -424,13 +434,9 @@ def place_bushes(config: VegetationConfig, terrain: Terrain, rng: np.random.Gene
         polygon: (K, 2) convex counter-clockwise region where bush centres lie.
         keep_out: (x, y, radius) discs no canopy reaches into (the obstacles).
     """
-    polygon = np.asarray(polygon, dtype=float)
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    n = rng.poisson(config.bush_density * float(np.prod(hi - lo)))
-    xy = lo + (hi - lo) * rng.random((n, 2))
-    height = rng.uniform(*config.bush_height, n)
-    diameter = rng.uniform(*config.bush_diameter, n)
-    keep = points_in_polygon(xy, polygon)
+    xy, keep = scatter(config.bush_density, np.asarray(polygon, dtype=float), rng)
+    height = rng.uniform(*config.bush_height, len(xy))
+    diameter = rng.uniform(*config.bush_diameter, len(xy))
     for x, y, r in keep_out:
         keep &= np.hypot(xy[:, 0] - x, xy[:, 1] - y) > r + 0.5 * diameter
     xy, height, diameter = xy[keep], height[keep], diameter[keep]

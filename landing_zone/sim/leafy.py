@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from landing_zone.sim.grass import ScaleField, blade_strips, points_in_polygon
+from landing_zone.sim.grass import ScaleField, blade_strips, scatter
 from landing_zone.sim.mesh import GRASS, Mesh
 from landing_zone.sim.terrain import Terrain
 
@@ -77,14 +77,11 @@ def forb_mesh(form: ForbForm, terrain: Terrain, rng: np.random.Generator, polygo
         density_scale, height_scale: optional fields that thin the plants and scale their
             height (a flight site's patches and clearings).
     """
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    n = rng.poisson(form.plants * float(np.prod(hi - lo)))
-    xy = lo + (hi - lo) * rng.random((n, 2))
-    keep = points_in_polygon(xy, polygon)
+    xy, keep = scatter(form.plants, polygon, rng)
     for x, y, r in keep_out:
         keep &= np.hypot(xy[:, 0] - x, xy[:, 1] - y) > r
     if density_scale is not None:
-        keep &= rng.random(n) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
+        keep &= rng.random(len(xy)) < np.clip(density_scale(xy[:, 0], xy[:, 1]), 0.0, 1.0)
     xy = xy[keep]
     n = len(xy)
     if n == 0:
@@ -161,12 +158,10 @@ def crown_mesh(form: CrownForm, terrain: Terrain, rng: np.random.Generator,
     discs by half their width; ``density_scale`` thins them and ``height_scale`` scales their
     height (never above ``form.height[1]``), as :func:`forb_mesh` does.
     """
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    n = rng.poisson(form.crowns * float(np.prod(hi - lo))) if count is None else count
-    xy = lo + (hi - lo) * rng.random((n, 2))
+    xy, keep = scatter(form.crowns, polygon, rng, count)
+    n = len(xy)
     width = np.exp(rng.uniform(math.log(form.width[0]), math.log(form.width[1]), n))
     top = rng.uniform(form.height[0], form.height[1], n)
-    keep = points_in_polygon(xy, polygon)
     for x, y, r in keep_out:
         keep &= np.hypot(xy[:, 0] - x, xy[:, 1] - y) > r + 0.5 * width
     if density_scale is not None:

@@ -62,7 +62,7 @@ from landing_zone.errors import SimulationError
 from landing_zone.sim.leafy import (CrownForm, ForbForm, crown_mesh, crown_top, forb_mesh,
                                     forb_top)
 from landing_zone.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
-                                    bush_mesh, place_bushes, points_in_polygon,
+                                    bush_mesh, place_bushes, points_in_polygon, scatter,
                                     vegetation_blades)
 from landing_zone.sim.mesh import GROUND, Mesh
 from landing_zone.sim.terrain import Terrain
@@ -410,10 +410,8 @@ def _gravel(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
     base_v, faces = np.asarray(ico.vertices), np.asarray(ico.faces, np.int64)
     templates = base_v[None] * rng.uniform(0.7, 1.2, (8, len(base_v), 1)) * np.array(
         [1.0, 0.8, 0.55])
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    n = rng.poisson(params['gravel'] * float(np.prod(hi - lo)))
-    xy = lo + (hi - lo) * rng.random((n, 2))
-    xy = xy[points_in_polygon(xy, polygon)]
+    xy, inside = scatter(params['gravel'], polygon, rng)
+    xy = xy[inside]
     n = len(xy)
     if n == 0:
         return Mesh.empty()
@@ -432,10 +430,8 @@ def _gravel(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
 def _debris(params: dict[str, Any], terrain: Terrain, rng: np.random.Generator,
             polygon: np.ndarray) -> Mesh:
     """Bark chips and twigs: thin boxes lying on the ground, under 3 cm high."""
-    lo, hi = polygon.min(axis=0), polygon.max(axis=0)
-    n = rng.poisson(params['debris'] * float(np.prod(hi - lo)))
-    xy = lo + (hi - lo) * rng.random((n, 2))
-    xy = xy[points_in_polygon(xy, polygon)]
+    xy, inside = scatter(params['debris'], polygon, rng)
+    xy = xy[inside]
     n = len(xy)
     if n == 0:
         return Mesh.empty()
