@@ -50,6 +50,7 @@ from torch.nn import functional as F
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.net import ConvBlock, SafetyNet, SafetyNetConfig
 from landing_zone.judging.patches import cut_patch, patch_counts, patch_ground
+from landing_zone.judging.tiles import tile_voxels
 from landing_zone.learn.samples import AugmentedVolumes, collect, cut_context
 from landing_zone.learn.scenes import ScenePack, open_source
 from landing_zone.sim.shards import SceneDataset
@@ -95,7 +96,7 @@ def cache(pack: ScenePack, copies: int, seed: int, augment: bool, workers: int
     mcfg, tcfg = MapConfig(), TileConfig()
     ds = TwoChannels(pack, mcfg, tcfg, seed, augment=augment, edge_drop=0.3 if augment else 0.0)
     keys = [(-1, s, c) for s in range(len(pack)) for c in range(copies)]
-    side = int(round(tcfg.tile_size / mcfg.voxel_size)) + 2 * tcfg.padding
+    side = tile_voxels(mcfg.voxel_size, tcfg) + 2 * tcfg.padding
     x, y, (seen, fitted) = collect(ds, keys, side, workers, dtype=torch.float16)
     return torch.cat([x, seen.to(torch.float16)], 1), y, fitted
 
