@@ -56,8 +56,8 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'assessor = landing_zone.frontends.node:main',
-            'landing-zone = landing_zone.cli:main',
+            'assessor = landing_zone.ros.node:main',
+            'landing-zone = landing_zone.tools.cli:main',
         ],
     },
 )

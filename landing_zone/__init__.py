@@ -1,7 +1,7 @@
 """landing_zone: where can a helicopter land? Per-tile P(safe) from LiDAR with a 3D CNN.
 
 The core takes numpy arrays and poses and never imports ROS; the ROS node
-(:mod:`landing_zone.frontends.node`) and bag replay (:mod:`landing_zone.frontends.replay`) are
+(:mod:`landing_zone.ros.node`) and bag replay (:mod:`landing_zone.replay`) are
 thin front ends.
 
     from landing_zone import Assessor

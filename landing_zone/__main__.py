@@ -1,3 +1,3 @@
-from landing_zone.cli import main
+from landing_zone.tools.cli import main
 
 main()

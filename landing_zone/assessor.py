@@ -758,7 +758,7 @@ class Assessor:
 
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of the map's counts and the tiles' results, taken under the locks at one
-        moment (between two clouds), for :mod:`landing_zone.io.snapshot`."""
+        moment (between two clouds), for :mod:`landing_zone.runtime.snapshot`."""
         with self._assess_lock, self._map_lock, self._state_lock:
             out = {f'map.{k}': v for k, v in self.map.export_state().items()}
             self._state.move(self._tile_origin())

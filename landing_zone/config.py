@@ -346,7 +346,7 @@ class AssessorConfig:
 
 @dataclass
 class StreamConfig:
-    """The stream's timing (:mod:`landing_zone.frontends.stream`), shared by node and replay."""
+    """The stream's timing (:mod:`landing_zone.runtime.stream`), shared by node and replay."""
 
     assessment_period: float = param(1.0, 'Stamp time between assessments', 's', (0.0, 60.0),
                                      open_lo=True)
@@ -364,13 +364,13 @@ class StreamConfig:
 
 @dataclass
 class LiveConfig:
-    """The live receive path's bounds (:mod:`landing_zone.frontends.ingest`), node only."""
+    """The live receive path's bounds (:mod:`landing_zone.runtime.ingest`), node only."""
 
     # clouds that may wait for the integration thread: 1 s at 20 Hz, room for the clouds that
     # come while an assessment pass has the CPU (10 overflowed now and then at 0.3 M returns/s
     # on a busy 2-core machine)
     # (a cloud of fewer than 1000 returns counts as its share of one, at least 1/20: a flood
-    # of tiny or malformed clouds cannot push the real ones out; frontends.ingest)
+    # of tiny or malformed clouds cannot push the real ones out; runtime.ingest)
     receive_queue: int = param(
         20, 'Clouds that may wait for integration, small ones by their share of 1000 returns; '
         'more push out the oldest (overload)', '', (1, 10000), read_only=True)

@@ -20,7 +20,7 @@ was hit, 1/3 one hit, 0.83 ten), recovered from the two cut channels (they give 
 counts), raw: sparse and nonnegative as a hit map is.
 
 The arms are trained from scratch by the same loop on the same cached augmented copies (the
-voxel cache's yaw, height shift and context cuts, :class:`~landing_zone.learn.samples.
+voxel cache's yaw, height shift and context cuts, :class:`~landing_zone.tools.learn.samples.
 AugmentedVolumes`), the shipped spec with its first convolution reading one channel (A) or
 two (B, C), the shipped optimiser (SGD lr 0.01, momentum 0.9, L2 5e-4, batch 20, dropout 0.5) with
 a cosine rate, and judged on synth3's test split: per-scene scores to ``OUT/scores_ARM_sSEED.
@@ -51,9 +51,9 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.net import ConvBlock, SafetyNet, SafetyNetConfig
 from landing_zone.judging.patches import cut_patch, patch_counts, patch_ground
 from landing_zone.judging.tiles import tile_voxels
-from landing_zone.learn.samples import AugmentedVolumes, collect, cut_context
-from landing_zone.learn.scenes import ScenePack, open_source
-from landing_zone.sim.shards import SceneDataset
+from landing_zone.tools.learn.samples import AugmentedVolumes, collect, cut_context
+from landing_zone.tools.learn.scenes import ScenePack, open_source
+from landing_zone.tools.sim.shards import SceneDataset
 
 
 ARMS = {'A': [0], 'B': [0, 1], 'C': [0, 2]}  # arm -> channels read: density, observed, hits

@@ -43,7 +43,7 @@ from landing_zone.judging.ground import fit_ground
 from landing_zone.judging.patches import (PatchVoxelizer, patch_columns, patch_counts,
                                           patch_ground)
 from landing_zone.judging.tiles import tile_voxels
-from landing_zone.sim.shards import SceneDataset
+from landing_zone.tools.sim.shards import SceneDataset
 
 BAND = (0.15, 0.65)  # [m] above the fitted plane: where an obstacle stands out of short grass
 TAUS = (0.05, 0.1, 0.15, 0.2, 0.3)  # [m] above the surroundings' canopy, for --scores

@@ -35,7 +35,7 @@ import numpy as np
 def _row(p: np.ndarray, y: np.ndarray) -> str:
     from sklearn.metrics import roc_auc_score
 
-    from landing_zone.learn.calibration import expected_calibration_error as ece
+    from landing_zone.tools.learn.calibration import expected_calibration_error as ece
 
     ob, safe = p[y == 0], p[y == 1]
     return (f'{roc_auc_score(y, p):.3f} | {ece(p, y):.3f} | {100 * np.mean(ob >= 0.5):.1f} % | '
@@ -60,7 +60,7 @@ def _header() -> None:
 
 
 def one_run(doc: dict[str, Any], family: np.ndarray) -> None:
-    from landing_zone.sim.families import TEST_FAMILIES
+    from landing_zone.tools.sim.families import TEST_FAMILIES
 
     labels = np.asarray(doc['labels'], np.int64)
     # 'CNN SPEC (file stem)' -> the stem
@@ -84,7 +84,7 @@ def one_run(doc: dict[str, Any], family: np.ndarray) -> None:
 
 
 def members(data: Path, pairs: list[tuple[Path, Path]]) -> None:
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.sim.shards import SceneDataset
 
     docs = [(json.loads(s.read_text()), json.loads(j.read_text())['families']['lofo'])
             for s, j in pairs]
@@ -111,7 +111,7 @@ def members(data: Path, pairs: list[tuple[Path, Path]]) -> None:
 
 
 def main() -> None:
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.sim.shards import SceneDataset
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('data', type=Path, help='the synth3 test directory the scores were made on')

@@ -34,8 +34,8 @@ def scene_features(data: str, split: str) -> list[dict]:
     from landing_zone.config import MapConfig, TileConfig
     from landing_zone.judging.patches import (PatchVoxelizer, centre_columns, cut_patch,
                                               patch_counts, patch_ground)
-    from landing_zone.learn.scenes import ScenePack
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.learn.scenes import ScenePack
+    from landing_zone.tools.sim.shards import SceneDataset
 
     pack = ScenePack.from_scenes(SceneDataset(data, split))
     mcfg, tcfg = MapConfig(), TileConfig()

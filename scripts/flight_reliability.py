@@ -5,7 +5,7 @@ P(safe) from the network alone, ``p_net``; with the guard, ``p_guard``; and as t
 publishes it, ``p_safe``, guard and OOD applied) with the flights' ground truth, and pools the
 judged tiles of all of them, clear sites included, as a planner meets them: per bin of P(safe),
 how many tiles, their mean P(safe) and the share of them that is safe; the ECE over those bins
-(:func:`landing_zone.learn.calibration.reliability`, 10 bins); and the share of safe tiles on
+(:func:`landing_zone.tools.learn.calibration.reliability`, 10 bins); and the share of safe tiles on
 the flights, which the model's calibration does not know (it is calibrated as if half the tiles
 held an obstacle, the training base rate)::
 
@@ -22,7 +22,7 @@ import numpy as np
 
 from guard_eval import workdir_tiles  # scripts/ is this script's first import path
 
-from landing_zone.learn.calibration import reliability
+from landing_zone.tools.learn.calibration import reliability
 
 BINS = 10
 

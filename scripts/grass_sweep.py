@@ -24,13 +24,13 @@ def main() -> int:
     from sklearn.metrics import roc_auc_score
 
     from landing_zone.assessor import default_model_path
-    from landing_zone.learn.baselines.plane import PlaneResiduals
+    from landing_zone.tools.evaluate.baselines.plane import PlaneResiduals
     from landing_zone.judging.checkpoint import load_model
     from landing_zone.judging.inference import predict
-    from landing_zone.sim.grass import GrassConfig
-    from landing_zone.sim.obstacles import models
-    from landing_zone.sim.scene import PatchConfig, simulate_patch
-    from landing_zone.sim.sensor import SensorConfig
+    from landing_zone.tools.sim.grass import GrassConfig
+    from landing_zone.tools.sim.obstacles import models
+    from landing_zone.tools.sim.scene import PatchConfig, simulate_patch
+    from landing_zone.tools.sim.sensor import SensorConfig
     from landing_zone.judging.patches import scene_to_input
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

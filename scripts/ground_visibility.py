@@ -24,7 +24,7 @@ from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.patches import (PatchVoxelizer, centre_columns, patch_counts,
                                           patch_ground)
 from landing_zone.judging.tiles import tile_voxels
-from landing_zone.sim.shards import SceneDataset
+from landing_zone.tools.sim.shards import SceneDataset
 
 HEIGHTS = (0.05, 0.08, 0.12)  # [m] a column no ray reached below this could hide that much
 CAPS = (0.02, 0.05, 0.1, 0.2)  # hidden shares of the tile to cap at

@@ -16,7 +16,7 @@ guard beside it (:mod:`landing_zone.judging.guard`), on what it never saw:
 * **clear sites** of each vegetation (no obstacle at all): false alarms only.
 
 Every flight is replayed through the same pipeline as the node
-(:func:`landing_zone.frontends.replay.replay`, map fixed on the site), which keeps the
+(:func:`landing_zone.replay.replay`, map fixed on the site), which keeps the
 network's own P(safe) (``p_net``) beside the final one (``p_safe``: the guard and, when the
 model has its reference, the OOD signal applied), so all are scored on the same tiles: the
 network alone, with the guard (its cap applied to ``p_net``), and with the guard and the OOD
@@ -74,7 +74,7 @@ CONDITIONS: dict[str, tuple[str, str, int, int, dict[str, Any]]] = {
 # --- test shapes (outside the library; this script only) ---------------------------------------
 
 def _model(name: str, mesh: Any, embed: float = 0.0) -> Any:
-    from landing_zone.sim.obstacles import ObstacleModel, _normalise
+    from landing_zone.tools.sim.obstacles import ObstacleModel, _normalise
     return ObstacleModel(name, 'box', 'test', _normalise(np.asarray(mesh.vertices, float)),
                          np.asarray(mesh.faces, np.int64), embed)
 
@@ -162,8 +162,8 @@ SHAPES = ('log', 'post', 'bucket', 'crate', 'slab', 'board', 'ball', 'pile', 'wa
 def place_shapes(points: np.ndarray, count: int, taken: list[np.ndarray],
                  rng: np.random.Generator) -> list[Any]:
     """``count`` test shapes (kinds cycled from a random start) on the flight's own ground."""
-    from landing_zone.sim.placement import SINK, ground_height
-    from landing_zone.sim.obstacles import Obstacle
+    from landing_zone.tools.sim.placement import SINK, ground_height
+    from landing_zone.tools.sim.obstacles import Obstacle
 
     out = []
     start = int(rng.integers(len(SHAPES)))
@@ -193,10 +193,10 @@ def run_flight(work: Path, name: str, seed: int, keep_map: bool = False,
     (None: the shipped one, and its OOD reference beside it), its cubes aligned to the ground
     planes or, ``align`` False, cut level; with ``keep_map`` the final
     density map goes to ``NAME_SEED.npz`` beside its labels (for ``scripts/ood_eval.py``)."""
-    from landing_zone.sim.insert import insert_obstacles
-    from landing_zone.sim.recorded import read_flight
-    from landing_zone.frontends.replay import replay
-    from landing_zone.sim.flight import flight_config, simulate_flight
+    from landing_zone.tools.sim.insert import insert_obstacles
+    from landing_zone.tools.sim.recorded import read_flight
+    from landing_zone.replay import replay
+    from landing_zone.tools.sim.flight import flight_config, simulate_flight
 
     result = work / f'{name}_{seed}.json'
     if result.exists():
@@ -278,7 +278,7 @@ def _obstacle_tiles(obstacles: list[dict[str, Any]]
                     ) -> tuple[dict[tuple[float, float], list[str]], set[tuple[float, float]]]:
     """Per tile the kinds of the obstacles over it (a test shape's kind is the first word of
     its name), and the tiles holding an obstacle's centre."""
-    from landing_zone.sim.flight import polygon_overlaps_square
+    from landing_zone.tools.sim.flight import polygon_overlaps_square
 
     kinds: dict[tuple[float, float], list[str]] = {}
     centres = set()
@@ -301,7 +301,7 @@ def _obstacle_tiles(obstacles: list[dict[str, Any]]
 def _save_map(bag: Path, a: Any, out: Path) -> None:
     """The flight's final map (every return integrated, the map fixed on the site)."""
     from landing_zone.assessor import Assessor
-    from landing_zone.sim.recorded import read_flight
+    from landing_zone.tools.sim.recorded import read_flight
 
     fl = read_flight(bag)
     ok = np.isfinite(fl.origins).all(axis=1)

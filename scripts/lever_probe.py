@@ -34,10 +34,10 @@ from torch.nn import functional as F
 
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig
-from landing_zone.learn.samples import AugmentedVolumes, cut_context, voxelize
-from landing_zone.learn.scenes import ScenePack, open_source
-from landing_zone.sim.mesh import OBSTACLE
-from landing_zone.sim.shards import SceneDataset
+from landing_zone.tools.learn.samples import AugmentedVolumes, cut_context, voxelize
+from landing_zone.tools.learn.scenes import ScenePack, open_source
+from landing_zone.tools.sim.mesh import OBSTACLE
+from landing_zone.tools.sim.shards import SceneDataset
 
 GRID = 4  # auxiliary cells per side of the tile: 25 cm
 

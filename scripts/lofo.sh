@@ -12,7 +12,7 @@
 # the final and fold models' initialisation, split and augmentation: another seed gives
 # another ensemble member with its own fold models, the same folds).
 # FOLDS=K (K >= 2) leaves out groups instead: K models, each without about 1/K of the
-# obstacle and vegetation families (landing_zone.learn.lofo.family_folds, seeded by
+# obstacle and vegetation families (landing_zone.tools.evaluate.lofo.family_folds, seeded by
 # FOLD_SEED): K models instead of 19, pessimistic figures (each model saw fewer families).
 # FINAL=FILE takes FILE as the final model instead of training one (the shipped model, say).
 # TRAIN_DATA may name several directories (space-separated): with FOLDS=K all are trained on
@@ -78,8 +78,8 @@ fi
 mkdir -p "$work"
 # The train families of synth3 (the test families are never trained on: the final model is
 # their leave-one-out model) and the vegetation families.
-families=$(.venv/bin/python -c 'from landing_zone.sim.families import TRAIN_FAMILIES as f; print(" ".join("obstacle:" + n for n in f))')
-vegetation=$(.venv/bin/python -c 'from landing_zone.sim.vegetation import VEGETATION_FAMILIES as f; print(" ".join("vegetation:" + n for n in f))')
+families=$(.venv/bin/python -c 'from landing_zone.tools.sim.families import TRAIN_FAMILIES as f; print(" ".join("obstacle:" + n for n in f))')
+vegetation=$(.venv/bin/python -c 'from landing_zone.tools.sim.vegetation import VEGETATION_FAMILIES as f; print(" ".join("vegetation:" + n for n in f))')
 
 run_train() {  # NAME ARGS...: landing-zone train ARGS (resumable), timed, progress filtered
     local name=$1; shift
@@ -121,7 +121,7 @@ lofo_models=()
 if [ "$grouped" = 1 ]; then
     if [ "$folds" = each ]; then
         # synth3's train families (as family_folds deals them) and the vegetation families
-        read -ra groups <<< "$(.venv/bin/python -c 'from landing_zone.sim.synth3 import synth3_train_families as f; print(" ".join("obstacle:" + n for n in f()))') $vegetation"
+        read -ra groups <<< "$(.venv/bin/python -c 'from landing_zone.tools.sim.synth3 import synth3_train_families as f; print(" ".join("obstacle:" + n for n in f()))') $vegetation"
         if [ -n "${ONLY:-}" ]; then
             read -ra only <<< "$ONLY"
             for spec in "${only[@]}"; do
@@ -131,7 +131,7 @@ if [ "$grouped" = 1 ]; then
             groups=("${only[@]}")
         fi
     else
-        mapfile -t groups < <(.venv/bin/python -c "from landing_zone.learn.lofo import family_folds
+        mapfile -t groups < <(.venv/bin/python -c "from landing_zone.tools.evaluate.lofo import family_folds
 for g in family_folds($folds, $fold_seed): print(' '.join(g))")
     fi
     for k in "${!groups[@]}"; do

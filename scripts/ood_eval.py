@@ -25,7 +25,7 @@ judged; false alarms)::
     python scripts/ood_eval.py --train data/synth2 --scenes 1500 runs/x/*.npz --json ood.json
 
 The shipped reference is not fitted here but by ``landing-zone fit-ood``
-(:mod:`landing_zone.learn.ood_fit`); this script measures the choice of score.
+(:mod:`landing_zone.tools.learn.ood_fit`); this script measures the choice of score.
 """
 from __future__ import annotations
 
@@ -83,7 +83,7 @@ class KNN:
 def training_reference(root: Path, scenes: int, model: Any) -> dict[str, np.ndarray]:
     """Features, statistics and labels of up to ``scenes`` training scenes (evenly spread)."""
     from landing_zone.judging.patches import scene_to_input
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.sim.shards import SceneDataset
 
     ds = SceneDataset(root, 'train')
     pick = np.unique(np.linspace(0, len(ds) - 1, min(scenes, len(ds))).astype(int))

@@ -9,7 +9,7 @@ apart), and among the judged ones the shares of obstacle scenes at P(safe) >= 0.
 of safe scenes flagged, with and without the signal. The test families (never trained on) are
 the ones that say whether it helps on what the model never saw.
 
-With ``--guard`` the guard runs first, as in the assessor (:mod:`landing_zone.learn.scene_guard`:
+With ``--guard`` the guard runs first, as in the assessor (:mod:`landing_zone.tools.evaluate.scene_guard`:
 on the counts the scene's cube is cut from, above the tile's ground plane): three conditions,
 the network alone, with the guard (P(safe) capped where it fires) and with the guard and the
 OOD signal, each with the shares above; the JSON gains ``guard`` and ``guard_ood`` beside
@@ -48,11 +48,11 @@ def main() -> None:
     from landing_zone.judging.checkpoint import input_configs, load_model
     from landing_zone.judging.inference import Predictor
     from landing_zone.judging.ood import load_reference, reference_path_for
-    from landing_zone.learn.lofo import scene_families
-    from landing_zone.learn.samples import voxelize
-    from landing_zone.learn.scenes import ScenePack
-    from landing_zone.sim.families import TEST_FAMILIES
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.evaluate.lofo import scene_families
+    from landing_zone.tools.learn.samples import voxelize
+    from landing_zone.tools.learn.scenes import ScenePack
+    from landing_zone.tools.sim.families import TEST_FAMILIES
+    from landing_zone.tools.sim.shards import SceneDataset
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('model', type=Path)
@@ -77,7 +77,7 @@ def main() -> None:
     found = None
     if args.guard:  # the guard's findings from the same read of each patch
         from landing_zone.config import GuardConfig
-        from landing_zone.learn.scene_guard import voxelize_guarded
+        from landing_zone.tools.evaluate.scene_guard import voxelize_guarded
         t0 = time.perf_counter()
         x, y, found = voxelize_guarded(pack, mcfg, tcfg, GuardConfig(), args.workers)
         print(f'voxelized and guarded {len(pack)} scenes in {time.perf_counter() - t0:.1f} s',
@@ -102,7 +102,7 @@ def main() -> None:
         if args.scores is not None:
             from types import SimpleNamespace
 
-            from landing_zone.learn.evaluate import scores_json
+            from landing_zone.tools.evaluate.roc import scores_json
             rows = [SimpleNamespace(name='net', scores=p),
                     SimpleNamespace(name='net + guard', scores=pg)]
             doc = scores_json(rows, pack.scene_ids.numpy(), y, str(ds.meta.get('dataset')),

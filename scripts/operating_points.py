@@ -61,7 +61,7 @@ def pct(v: float | None) -> str:
 
 
 def main() -> int:
-    from landing_zone.learn.lofo import family_figures
+    from landing_zone.tools.evaluate.lofo import family_figures
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('sources', type=Path, nargs='+')
     ap.add_argument('--keep', type=float, nargs='+', default=[0.5, 0.85],
@@ -105,7 +105,7 @@ def main() -> int:
             return 2
         edge_rows += [(src.name, name, p, y, scenes) for name, p in methods.items()]
     if edge_rows:
-        from landing_zone.sim.shards import SceneDataset
+        from landing_zone.tools.sim.shards import SceneDataset
         ds = SceneDataset(edge_dir, 'test')
         plans = {}
         print('\n| source | method | '
@@ -143,8 +143,8 @@ def bar(data: Path, loaded: list[tuple[Path, dict[str, np.ndarray], np.ndarray,
     """Per score file (as :func:`read` gave it), method and obstacle family (and pooled): the
     safe scenes flagged at the threshold above which 2 % and 0.5 % of the family's obstacle
     scenes lie."""
-    from landing_zone.learn.lofo import scene_families
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.evaluate.lofo import scene_families
+    from landing_zone.tools.sim.shards import SceneDataset
     family = np.asarray(scene_families(SceneDataset(data, 'test'))['obstacle'])
     print('\n| source | method | obstacle family | scenes | '
           + ' | '.join(f'safe flagged where {b:.1%} of obstacles pass' for b in BAR) + ' |')

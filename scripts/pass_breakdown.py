@@ -45,7 +45,7 @@ from typing import Any, Callable
 import numpy as np
 
 from landing_zone.config import TileConfig
-from landing_zone.sim.mesh import GROUND, OBSTACLE
+from landing_zone.tools.sim.mesh import GROUND, OBSTACLE
 
 HEIGHT_BANDS = (0.10, 0.15, 0.30, 0.60)  # [m] exposed height band edges
 BURIAL_BANDS = (0.01, 0.03)  # [m]; synth3 test obstacles are buried 0-9 cm, a quarter < 0.5 cm
@@ -174,9 +174,9 @@ def markdown(report: dict[str, Any], heads: tuple[str, str] = ('P(safe) >= 0.5',
 
 
 def main() -> None:
-    from landing_zone.learn.lofo import lofo_scores
-    from landing_zone.sim.shards import SceneDataset
-    from landing_zone.sim.synth3 import families_of
+    from landing_zone.tools.evaluate.lofo import lofo_scores
+    from landing_zone.tools.sim.shards import SceneDataset
+    from landing_zone.tools.sim.synth3 import families_of
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument('data', type=Path, help='the synth3 directory the scores were made on')

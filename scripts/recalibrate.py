@@ -1,7 +1,7 @@
 """Re-fit a model's calibration temperature on the validation scenes it was trained beside.
 
 Used once for the shipped model, which was trained on a lent GPU machine before the
-temperature fit got its prior (landing_zone.learn.calibration.fit_temperature): the weights stay
+temperature fit got its prior (landing_zone.tools.learn.calibration.fit_temperature): the weights stay
 bit-for-bit, only the temperature and the validation figures in the metadata change.
 
     python scripts/recalibrate.py MODEL DATA_DIR OUT [--val-fraction 0.1] [--seed 0]
@@ -15,14 +15,14 @@ import argparse
 
 import numpy as np
 
-from landing_zone.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
+from landing_zone.tools.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
 from landing_zone.judging.inference import predict
-from landing_zone.sim.shards import SceneDataset
-from landing_zone.learn.samples import voxelize
-from landing_zone.learn.scenes import ScenePack, split_scenes
-from landing_zone.learn.train import roc_auc
+from landing_zone.tools.sim.shards import SceneDataset
+from landing_zone.tools.learn.samples import voxelize
+from landing_zone.tools.learn.scenes import ScenePack, split_scenes
+from landing_zone.tools.learn.train import roc_auc
 
 
 def main() -> None:

@@ -31,9 +31,9 @@ def hybrid_counts(models: list[Path], data: Path) -> list[dict[str, int]]:
     """Per model: false alarms and obstacles passed (at 0.5) on the hybrid test split."""
     from landing_zone.judging.checkpoint import input_configs, load_model
     from landing_zone.judging.inference import Predictor
-    from landing_zone.learn.samples import voxelize
-    from landing_zone.learn.scenes import ScenePack
-    from landing_zone.sim.shards import SceneDataset
+    from landing_zone.tools.learn.samples import voxelize
+    from landing_zone.tools.learn.scenes import ScenePack
+    from landing_zone.tools.sim.shards import SceneDataset
 
     ds = SceneDataset(data, 'test')
     pack = ScenePack.from_scenes(ds, np.arange(len(ds)))
@@ -54,7 +54,7 @@ def hybrid_counts(models: list[Path], data: Path) -> list[dict[str, int]]:
 
 def test_family_passes(families_json: Path) -> list[dict[str, float]]:
     """Per model in the file (in its order): test-family obstacle tiles passed at 0.5, 0.9."""
-    from landing_zone.sim.families import TEST_FAMILIES
+    from landing_zone.tools.sim.families import TEST_FAMILIES
 
     with open(families_json, encoding='utf-8') as f:
         rep = json.load(f)['families']['methods']

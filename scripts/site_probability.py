@@ -30,7 +30,7 @@ from scipy.optimize import minimize_scalar
 from sklearn.metrics import roc_auc_score
 
 from landing_zone.judging.sites import footprint_mask, site_probabilities
-from landing_zone.learn.flights import footprint_truth
+from landing_zone.tools.evaluate.flights import footprint_truth
 
 BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.95, 1.0)
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9)

@@ -47,9 +47,9 @@ def pooled(rows, key):
 
 def run_one(seed, slope, azimuth, model, work, align=False):
     from landing_zone.config import AssessorConfig, MapConfig
-    from landing_zone.frontends.replay import replay
+    from landing_zone.replay import replay
     from landing_zone.io.labels import read_labels, tile_truth
-    from landing_zone.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
 
     cfg = FlightConfig(seed=seed, slope=slope, slope_azimuth=azimuth)
     bag = Path(work) / f'site_{seed}_{slope:g}.mcap'

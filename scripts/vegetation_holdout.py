@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
-from landing_zone.learn.lofo import scene_families
-from landing_zone.sim.shards import SceneDataset
+from landing_zone.tools.evaluate.lofo import scene_families
+from landing_zone.tools.sim.shards import SceneDataset
 
 MATCHED = 0.05  # share of the other vegetation's safe tiles flagged at the matched threshold
 

@@ -109,7 +109,7 @@ class SafetyNet(nn.Module):
         layers: the parsed spec.
         temperature: calibration temperature; P(safe) = sigmoid(logit / temperature + offset).
         offset: calibration offset (0 unless fitted on families the net never saw, see
-            :mod:`landing_zone.learn.recalibrate`).
+            :mod:`landing_zone.tools.learn.recalibrate`).
     """
 
     def __init__(self, config: SafetyNetConfig | None = None) -> None:

@@ -21,7 +21,7 @@ The reference is a safetensors file beside the model (``NAME.ood.safetensors`` f
 the threshold, the quantile and the SHA-256 of the model's weights; :func:`load_reference`
 refuses a file of another model, or one that is unreadable or malformed, with one line. Nothing
 in it is executed (safetensors holds raw arrays; no pickle). ``landing-zone fit-ood`` fits one
-(:mod:`landing_zone.learn.ood_fit`).
+(:mod:`landing_zone.tools.learn.ood_fit`).
 """
 from __future__ import annotations
 

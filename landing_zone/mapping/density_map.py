@@ -691,7 +691,7 @@ class DensityMap:
 
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of everything the counts and the dirty record are made of (for
-        :mod:`landing_zone.io.snapshot`): the window, the hot bytes in storage order, the cold
+        :mod:`landing_zone.runtime.snapshot`): the window, the hot bytes in storage order, the cold
         blocks and the dirty tiles. :meth:`import_state` on a map of the same configuration
         restores the same counts byte for byte."""
         used = self._used.copy()

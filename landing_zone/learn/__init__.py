@@ -1,1 +1,0 @@
-"""Offline learning: training, evaluation, architecture search, calibration, baselines."""

@@ -1,0 +1,459 @@
+"""Bag front end: run the node's pipeline offline on a recorded bag (``landing-zone replay``).
+
+The bag's clouds and poses go, in log-time order, through the same
+:class:`~landing_zone.runtime.stream.Stream` and :class:`~landing_zone.assessor.Assessor` the
+node uses. Each assessment is written
+into the output bag at the stamp of the newest cloud it includes (the moment the node would
+have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/safety_cloud``,
+``/assessor/landing_sites``, ``/assessor/markers``, ``/diagnostics``); the final state goes to
+REPORT.json (docs/INTERFACES.md §3) and, optionally, a PNG of the safety map over a top view
+of the returns.
+
+A survey file (LAS / LAZ, :mod:`landing_zone.io.survey`) replays the same way: its returns and
+sensor trajectory become the same cloud and pose messages, in a local metric frame whose
+origin the report states (``survey``).
+
+Everything is deterministic except the wall-time figures (``stats.seconds`` and the rates and
+latencies in ``/diagnostics``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from landing_zone.errors import BagError, ConfigError
+
+if TYPE_CHECKING:
+    from landing_zone.assessor import Assessment
+    from landing_zone.config import AssessorConfig, StreamConfig
+    from landing_zone.runtime.stream import Stream
+
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME']
+
+NODE_NAME = 'assessor'
+# Returns kept for the PNG's top view: every TOP_VIEW_STRIDE-th return, at most TOP_VIEW_MAX.
+TOP_VIEW_STRIDE = 4
+TOP_VIEW_MAX = 400_000
+
+
+def output_topics(node: str = NODE_NAME) -> dict[str, str]:
+    """Output topic -> message type, as the node named ``node`` publishes them."""
+    from msg_adapters.grid import DIAGNOSTICS_TYPE, OUTPUT_TYPES
+
+    out = {f'/{node}/{name}': msgtype for name, msgtype in OUTPUT_TYPES.items()}
+    out['/diagnostics'] = DIAGNOSTICS_TYPE
+    return out
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced.
+
+    Attributes:
+        assessment: the final state of the tiles.
+        stats: the report's counters (clouds, points, dropped_points, seconds, ...).
+        bag_seconds: stamp-time span of the clouds integrated [s].
+        seconds: wall time of the whole replay, set-up and report included [s].
+        assessments: assessment passes written to the output bag.
+        top_view: (N, 3) float32 subsample of the returns (for the PNG).
+        timings: wall seconds by stage: ``setup`` (model, map, warm-up), ``read`` (bag reading and
+            deserializing), ``ingest`` (decoding and integrating clouds, poses), ``assess``
+            (tiles and network, on a thread of its own, overlapped with the rest),
+            ``assess_wait`` (what of it the loop waited for), ``write`` (building and writing
+            the output messages), ``loop`` (read + ingest + assess_wait + write), ``report``
+            (JSON and PNG); ``cpu``: CPU seconds of the whole process during the loop, every
+            thread (the work, whatever else shares the machine).
+        ood_reference: the OOD reference file judged with (None: the signal was off).
+    """
+
+    assessment: Assessment
+    stats: dict[str, Any]
+    bag_seconds: float
+    seconds: float
+    assessments: int
+    top_view: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    timings: dict[str, float] = field(default_factory=dict)
+    survey: dict[str, Any] | None = None
+    ood_reference: str | None = None
+
+    @property
+    def realtime_factor(self) -> float:
+        """Bag time replayed per second of processing (the loop: reading, integrating,
+        assessing, writing; set-up and the report excluded), inf for an empty bag."""
+        loop = self.timings.get('loop', self.seconds)
+        return self.bag_seconds / loop if loop > 0 else math.inf
+
+
+class _Outputs:
+    """Writes each assessment's messages into the output bag."""
+
+    def __init__(self, writer: Any) -> None:
+        from msg_adapters import MessageTypes
+
+        self.writer = writer
+        self.types = MessageTypes.rosbags(writer.types) if writer is not None else None
+        self.seconds = 0.0  # spent building and writing messages
+        self.topics = output_topics()
+        if writer is not None:
+            for topic, msgtype in self.topics.items():
+                writer.add_topic(topic, msgtype)
+
+    def messages(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int
+                 ) -> list[tuple[str, Any]]:
+        """(topic, message) of one assessment, in the order they are written."""
+        from msg_adapters import MessageTypes, grid
+
+        t = self.types if self.types is not None else MessageTypes.rosbags()
+        base = f'/{NODE_NAME}'
+        return [(f'{base}/safety_grid', grid.safety_grid(assessment, stamp_ns, t)),
+                (f'{base}/safety_cloud', grid.safety_cloud(assessment, stamp_ns, t)),
+                (f'{base}/landing_sites', grid.landing_site_poses(assessment, stamp_ns, t)),
+                (f'{base}/markers', grid.markers(assessment, stamp_ns, types=t)),
+                ('/diagnostics', grid.diagnostics(diagnostics, stamp_ns, types=t))]
+
+    def write(self, assessment: Assessment, diagnostics: dict[str, str], stamp_ns: int) -> None:
+        if self.writer is None:
+            return
+        t0 = time.perf_counter()
+        for topic, msg in self.messages(assessment, diagnostics, stamp_ns):
+            self.writer.write(topic, stamp_ns, msg)
+        self.seconds += time.perf_counter() - t0
+
+
+def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
+           report: str | os.PathLike[str] | None = None,
+           png: str | os.PathLike[str] | None = None, *,
+           points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose',
+           model: str | os.PathLike[str] | None = None,
+           center: Sequence[float] | None = None,
+           config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
+           progress: bool = True, labels: str | os.PathLike[str] | None = None,
+           overlap: bool = True, trajectory: str | os.PathLike[str] | None = None,
+           log: Callable[[str], None] | None = None, warm: bool = True) -> ReplayResult:
+    """Assess a recorded flight as the node would, writing its outputs.
+
+    Args:
+        bag: ROS 2 bag (directory, .mcap or .db3) or ROS 1 .bag with the clouds and poses.
+        out: output bag (.mcap file, or a directory) for the node's topics; None: not written.
+        report: REPORT.json path; None: not written.
+        png: PNG of the final safety map; None: not drawn.
+        points_topic: topic of the registered clouds (sensor_msgs/PointCloud2).
+        pose_topic: topic of the sensor poses (geometry_msgs/PoseStamped).
+        model: model file; default the config's, else the shipped model.
+        center: (x, y) of a fixed region of interest; default: follow the sensor.
+        config: the pipeline's configuration; default AssessorConfig().
+        stream_config: the stream's timing; default StreamConfig().
+        progress: show a tqdm progress bar (on a terminal).
+        labels: SITE.labels.json; when given, the PNG marks the true obstacles.
+        overlap: judge each pass on a worker thread while the next clouds are integrated
+            (the same passes and outputs; False runs them in turn, for comparison).
+        trajectory: for a LAS / LAZ ``bag``: the sensor trajectory (CSV ``t,x,y,z`` or SBET);
+            None derives it from GPS time and scan angle. ``center`` is then in the file's
+            CRS and units.
+        log: called with each line worth telling the user (a survey's assumptions).
+        warm: run :func:`~landing_zone.runtime.ingest.warm_up` in the set-up, as the node
+            does (False: the first clouds and pass pay for loading the kernels, in the loop).
+
+    Returns:
+        A :class:`ReplayResult`.
+
+    Raises:
+        BagError: the bag is missing, unreadable, corrupt, or lacks the topics.
+        ModelError: the model is missing or invalid.
+        ConfigError: a bad configuration or center.
+    """
+    from tqdm import tqdm
+
+    from landing_zone.assessor import Assessor
+    from landing_zone.runtime.ingest import warm_up
+    from landing_zone.io.bags import BagWriter, read_messages, require_topics
+    from landing_zone.io.survey import is_survey, read_survey
+    from landing_zone.runtime.stream import Stream
+
+    t_start = time.perf_counter()
+    bag = Path(bag)
+    survey = None
+    if is_survey(bag):
+        survey = read_survey(bag, trajectory, log=log)
+    else:
+        require_topics(bag, points_topic, pose_topic)
+    if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
+        raise ConfigError(f'center must be two finite numbers, got {center!r}')
+    if survey is not None and center is not None:
+        # the file's CRS and units -> the local metric frame
+        center = tuple(float(v) for v in (np.asarray(center, np.float64) - survey.origin[:2])
+                       * survey.metres_per_unit)
+    assessor = Assessor(config, center=center, model=model)
+    stream = Stream(assessor, stream_config)
+    kept: list[np.ndarray] = []
+
+    def keep(_: int, xyz: np.ndarray, __: np.ndarray) -> None:
+        kept.append(np.asarray(xyz[::TOP_VIEW_STRIDE], np.float32))
+
+    stream.on_integrate = keep
+    writer = BagWriter(out, overwrite=True) if out is not None else None
+    last_ns = 0
+    t_ingest = 0.0
+    if writer is not None:
+        writer.open()
+    passes = _Passes(stream, overlap)
+    try:
+        outputs = _Outputs(writer)
+        if warm:
+            # as the node does before it listens: loading and compiling the kernels, torch's
+            # first pass and the first messages built fall in the set-up, not in the loop
+            warm_up(assessor, build=lambda a: outputs.messages(a, {}, 0))
+        t_loop = time.perf_counter()
+        cpu_loop = time.process_time()
+        setup = t_loop - t_start
+        source = (survey.messages(points_topic, pose_topic, assessor.config.frame_id)
+                  if survey is not None else read_messages(bag, [points_topic, pose_topic]))
+        bar = tqdm(source, unit=' msg',
+                   desc=f'replay {bag.name}', disable=None if progress else True,
+                   mininterval=0.5, leave=False)
+        for m in bar:
+            last_ns = m.stamp_ns
+            t0 = time.perf_counter()
+            if m.topic == pose_topic:
+                stream.add_pose_msg(m.msg)
+            else:
+                stream.add_cloud_msg(m.msg)
+            t_ingest += time.perf_counter() - t0
+            if stream.due():
+                passes.begin(outputs)
+        t0 = time.perf_counter()
+        stream.flush()
+        t_ingest += time.perf_counter() - t0
+        if stream.unassessed or passes.count == 0:
+            passes.begin(outputs, fallback_ns=last_ns)
+        passes.end(outputs)
+        if writer is not None:
+            writer.close()
+    except BaseException:
+        passes.abort()
+        if writer is not None:
+            writer.abort()
+        raise
+    finally:
+        assessor.close()  # its threads; the results stay readable
+    loop = time.perf_counter() - t_loop
+    cpu = time.process_time() - cpu_loop
+    result = assessor.last
+    assert result is not None
+    first_ns, last_cloud_ns = stream.stamp_span
+    stats = stream.stats()
+    stats['seconds'] = round(time.perf_counter() - t_start, 3)
+    bag_seconds = (last_cloud_ns - first_ns) / 1e9 if first_ns is not None else 0.0
+    stats['bag_seconds'] = round(bag_seconds, 3)
+    assess_s = stream.assess_seconds_total
+    timings = {'setup': setup,
+               'read': max(loop - t_ingest - passes.waited - outputs.seconds, 0.0),
+               'ingest': t_ingest, 'assess': assess_s, 'assess_wait': passes.waited,
+               'write': outputs.seconds, 'loop': loop, 'cpu': cpu}
+    top = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
+    if len(top) > TOP_VIEW_MAX:
+        top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
+    res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
+                       seconds=0.0, assessments=passes.count, top_view=top, timings=timings,
+                       survey=survey.describe() if survey is not None else None,
+                       ood_reference=str(assessor.ood_path) if assessor.ood_path else None)
+    t_report = time.perf_counter()
+    if report is not None:
+        doc = result.to_report(stats)
+        doc['model'] = str(assessor.model_path) if assessor.model_path else None
+        # without a reference the OOD signal is off: say so (null)
+        doc['ood_reference'] = res.ood_reference
+        doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
+                         for k, v in assessor.config.to_flat().items()}
+        doc['config']['region_center'] = list(assessor.config.center or [])
+        if res.survey is not None:
+            doc['survey'] = res.survey
+        _write_json(Path(report), doc)
+    if png is not None:
+        render_png(result, top, png, labels=labels)
+    res.timings['report'] = time.perf_counter() - t_report
+    res.seconds = time.perf_counter() - t_start
+    return res
+
+
+class _Passes:
+    """Assessment passes overlapped with integration, with the results of one after another.
+
+    A pass begins (:meth:`Stream.begin_assess`: the map copied at that moment) right after the
+    cloud that made it due, as it would without overlap, and is judged on a worker thread while
+    the next clouds are integrated; the next pass begins only when this one has finished, and
+    the outputs are written in order. So the passes and what is written are those of running
+    each pass in turn; only the wall time differs.
+    """
+
+    def __init__(self, stream: Stream, overlap: bool = True) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.stream = stream
+        self.overlap = overlap
+        self.count = 0
+        self.waited = 0.0  # seconds the reading thread waited for a pass to finish
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix='replay-assess')
+        self._pending: tuple[Any, int, dict[str, str]] | None = None
+
+    def begin(self, outputs: _Outputs, fallback_ns: int = 0) -> None:
+        self._collect(outputs)
+        job = self.stream.begin_assess()
+        # what /diagnostics says is what was true when the pass began
+        diagnostics = self.stream.diagnostics()
+        stamp = job.stamp_ns if job.stamp_ns is not None else fallback_ns
+        self._pending = (self._pool.submit(self.stream.finish_assess, job), stamp, diagnostics)
+        self.count += 1
+        if not self.overlap:
+            self._collect(outputs)
+
+    def _collect(self, outputs: _Outputs) -> None:
+        if self._pending is None:
+            return
+        future, stamp, diagnostics = self._pending
+        self._pending = None
+        t0 = time.perf_counter()
+        result = future.result()
+        self.waited += time.perf_counter() - t0
+        outputs.write(result, diagnostics, stamp)
+
+    def end(self, outputs: _Outputs) -> None:
+        self._collect(outputs)
+        self._pool.shutdown()
+
+    def abort(self) -> None:
+        if self._pending is not None:
+            self._pending[0].cancel()
+            try:
+                self._pending[0].result()
+            except BaseException:  # the error that aborts the replay is raised already
+                pass
+        self._pool.shutdown()
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + '.tmp')
+    try:
+        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + '\n', encoding='utf-8')
+        os.replace(tmp, path)
+    except OSError as err:
+        raise BagError(f'cannot write report {path}: {err.strerror}') from err
+
+
+def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.PathLike[str],
+               labels: str | os.PathLike[str] | None = None, title: str | None = None) -> None:
+    """The safety map over a grey top view of the returns, with the landing sites.
+
+    Tiles are coloured by P(safe) (red 0 -> green 1), unknown tiles are left clear with a grey
+    hatch; the landing sites are drawn as footprint circles numbered best first; with
+    ``labels`` (SITE.labels.json) the true obstacles' footprints are outlined in black.
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    from matplotlib import pyplot as plt
+    from matplotlib.patches import Circle, Polygon, Rectangle
+
+    ts = assessment.tile_size
+    x0, y0 = assessment.origin[0] * ts, assessment.origin[1] * ts
+    nx, ny = assessment.shape
+    extent = (x0, x0 + nx * ts, y0, y0 + ny * ts)
+    fig, ax = plt.subplots(figsize=(7.5, 7.0), dpi=110)
+    heights = _height_image(np.asarray(top_view, np.float64), extent, cell=0.1)
+    if heights is not None:
+        lo, hi = np.nanpercentile(heights, [2, 98]) if np.isfinite(heights).any() else (0, 1)
+        ax.imshow(np.ma.masked_invalid(heights).T, origin='lower', extent=extent,
+                  cmap='Greys_r', vmin=lo, vmax=max(hi, lo + 1e-3), interpolation='nearest')
+    p = assessment.grid(assessment.p_safe)
+    img = ax.imshow(np.ma.masked_invalid(p).T, origin='lower', extent=extent, cmap='RdYlGn',
+                    vmin=0.0, vmax=1.0, alpha=0.5, interpolation='nearest')
+    unknown = ~np.isfinite(p)
+    for i, j in zip(*np.nonzero(unknown)):
+        ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
+                               edgecolor='0.6', linewidth=0))
+    handles = _draw_reasons(ax, assessment)
+    if labels is not None:
+        from landing_zone.io.labels import obstacle_footprints, read_labels
+
+        for ob in obstacle_footprints(read_labels(labels)):
+            ax.add_patch(Polygon(ob, closed=True, fill=False, edgecolor='black', linewidth=1.2))
+    for rank, site in enumerate(assessment.sites, start=1):
+        ax.add_patch(Circle((site.x, site.y), assessment.footprint_radius, fill=False,
+                            edgecolor='tab:blue',
+                            linewidth=2.0 if rank == 1 else 1.0))
+        ax.annotate(str(rank), (site.x, site.y), color='tab:blue', ha='center', va='center',
+                    fontsize=9, weight='bold')
+    if handles:
+        ax.legend(handles=handles, loc='upper left', fontsize=7, framealpha=0.8,
+                  title='footprint centred here rejected for', title_fontsize=7)
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_aspect('equal')
+    ax.set_xlabel(f'x [m] ({assessment.frame_id})')
+    ax.set_ylabel('y [m]')
+    judged = int(np.isfinite(assessment.p_safe).sum())
+    ax.set_title(title or f'P(safe) per {ts:g} m tile: {judged} of {len(assessment)} judged; '
+                          'hatched: unknown')
+    fig.colorbar(img, ax=ax, label='P(safe)', shrink=0.8)
+    fig.tight_layout()
+    try:
+        fig.savefig(path)
+    except OSError as err:
+        raise BagError(f'cannot write {path}: {err.strerror}') from err
+    finally:
+        plt.close(fig)
+
+
+# How the PNG marks a candidate left out for a limit: hatch and colour per reason.
+_REASON_HATCH = {'slope': ('\\\\', 'darkorange'), 'step': ('xx', 'purple'),
+                 'clearance': ('..', 'deepskyblue')}
+
+
+def _draw_reasons(ax: Any, assessment: Assessment) -> list[Any]:
+    """Hatch the tiles whose centred footprint is left out for slope, step or clearance;
+    return the legend's handles (one per reason drawn)."""
+    from matplotlib.patches import Patch, Rectangle
+
+    from landing_zone.judging.sites import REASONS
+
+    cand = assessment.candidates
+    if cand is None:
+        return []
+    ts = assessment.tile_size
+    handles = []
+    for why, (hatch, color) in _REASON_HATCH.items():
+        bit = 1 << REASONS.index(why)
+        cells = np.argwhere(cand.reasons & bit)
+        for i, j in cells:
+            x, y = cand.center(int(i), int(j))
+            ax.add_patch(Rectangle((x - ts / 2, y - ts / 2), ts, ts, fill=False, hatch=hatch,
+                                   edgecolor=color, linewidth=0))
+        if len(cells):
+            handles.append(Patch(facecolor='none', edgecolor=color, hatch=hatch,
+                                 label=f'{why} ({len(cells)})'))
+    return handles
+
+
+def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],
+                  cell: float) -> np.ndarray | None:
+    """Highest return per ``cell``-sized pixel of the extent (NaN where none), x-major."""
+    if len(points) == 0:
+        return None
+    nx = max(1, int(round((extent[1] - extent[0]) / cell)))
+    ny = max(1, int(round((extent[3] - extent[2]) / cell)))
+    i = np.floor((points[:, 0] - extent[0]) / cell).astype(np.int64)
+    j = np.floor((points[:, 1] - extent[2]) / cell).astype(np.int64)
+    ok = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & np.isfinite(points[:, 2])
+    if not ok.any():
+        return None
+    img = np.full(nx * ny, -np.inf)
+    np.maximum.at(img, i[ok] * ny + j[ok], points[ok, 2])
+    img[np.isinf(img)] = np.nan
+    return img.reshape(nx, ny)

@@ -1,0 +1,1 @@
+"""Offline tooling, never imported by the node: simulation, learning, evaluation, benchmarks, the CLI."""

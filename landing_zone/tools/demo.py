@@ -1,0 +1,186 @@
+"""``landing-zone demo``: simulate a landing-site flight, assess it with the shipped model.
+
+1. :func:`landing_zone.tools.sim.flight.simulate_flight` writes the default site's flight (20 x 20 m
+   of grass patches and obstacles, a bank rising at 12 degrees over its last 5 m in x, a
+   lawnmower pass at 8 m) as ``site.mcap`` and its ground truth as ``site.labels.json``.
+2. :func:`landing_zone.replay.replay` runs the node's pipeline on it with the map fixed
+   on the site, writing ``assessed.mcap``, ``report.json`` and ``map.png``.
+3. The tile map is printed in colour (green safe, red unsafe, grey unknown; ``XX`` marks the
+   tiles an obstacle really overlaps), with the AUC of the per-tile P(safe) against the labels
+   over the tiles that were judged, and the fraction judged; then how many candidate
+   footprints were left out for each reason (the bank's for slope: ``map.png`` hatches them).
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.text import Text
+
+    from landing_zone.assessor import Assessment
+    from landing_zone.replay import ReplayResult
+
+__all__ = ['DemoResult', 'tile_map', 'run_demo', 'DEMO_BANK']
+
+# Slope of the demo site's bank [deg]: steeper than landing_sites.max_slope_deg's default (8),
+# so its footprints are left out for slope.
+DEMO_BANK = 12.0
+
+
+@dataclass
+class DemoResult:
+    """What the demo produced and measured."""
+
+    out_dir: Path
+    replay: ReplayResult
+    auc: float | None  # of P(safe) against the labels over the judged tiles (None: one class)
+    judged_fraction: float  # of the site's labelled tiles
+    n_judged: int
+    seconds: dict[str, float]
+
+
+def _rgb(p: float) -> str:
+    """red (0) -> yellow (0.5) -> green (1), as rich's hex colour."""
+    r = min(1.0, 2.0 * (1.0 - p))
+    g = min(1.0, 2.0 * p)
+    return f'#{int(200 * r):02x}{int(190 * g):02x}20'
+
+
+def tile_map(assessment: Assessment, labels: dict[str, Any] | None = None) -> Text:
+    """The tiles as coloured two-character cells, north (+y) up, with axis ticks."""
+    from rich.text import Text
+
+    from landing_zone.io.labels import tile_truth
+
+    truth = (tile_truth(assessment.centers, assessment.tile_size, labels) if labels
+             else np.full(len(assessment), -1))
+    nx, ny = assessment.shape
+    ts = assessment.tile_size
+    text = Text()
+    for j in range(ny - 1, -1, -1):
+        y = (assessment.origin[1] + j + 0.5) * ts
+        text.append(f'{y:7.1f} ' if j % 5 == 0 or j == ny - 1 else ' ' * 8, style='dim')
+        for i in range(nx):
+            k = i * ny + j
+            p = float(assessment.p_safe[k])
+            glyph = 'XX' if truth[k] == 0 else '  '
+            if math.isnan(p):
+                text.append(glyph if truth[k] == 0 else '··', style='white on grey23')
+            else:
+                text.append(glyph, style=f'bold black on {_rgb(p)}')
+        text.append('\n')
+    axis = [' '] * (2 * nx)
+    for i in range(0, nx, 5):
+        label = f'{(assessment.origin[0] + i + 0.5) * ts:.1f}'
+        for c, ch in enumerate(label):
+            if 2 * i + c < len(axis):
+                axis[2 * i + c] = ch
+    text.append(' ' * 8 + ''.join(axis) + '   x [m]\n', style='dim')
+    text.append(' ' * 8)
+    text.append('  ', style='on ' + _rgb(1.0))
+    text.append(' safe  ')
+    text.append('  ', style='on ' + _rgb(0.5))
+    text.append(' 0.5  ')
+    text.append('  ', style='on ' + _rgb(0.0))
+    text.append(' unsafe  ')
+    text.append('··', style='white on grey23')
+    text.append(' unknown  ')
+    text.append('XX', style='bold')
+    text.append(' obstacle (truth)\n')
+    return text
+
+
+def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
+             model: str | os.PathLike[str] | None = None,
+             console: Console | None = None, families: tuple[str, ...] = (),
+             bank: float = DEMO_BANK) -> DemoResult:
+    """Simulate, replay, print; see the module docstring.
+
+    Args:
+        out_dir: where site.mcap, site.labels.json, assessed.mcap, report.json, map.png go.
+        seed: the simulator's seed (same seed, same site and flight).
+        model: model file; default the shipped model.
+        console: where to print (default a new rich Console).
+        families: obstacle families (:mod:`landing_zone.tools.sim.families`) whose test instances
+            join the site's obstacles, one more obstacle each (default: the library's six).
+        bank: slope of the bank over the site's last 5 m in x [deg]; 0: none.
+
+    Raises:
+        ModelError: no model (none shipped and none given).
+        SimulationError, BagError: the simulation or the replay failed.
+    """
+    from rich.console import Console
+
+    from landing_zone.assessor import default_model_path
+    from landing_zone.replay import replay
+    from landing_zone.io.labels import read_labels, score_tiles
+    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+
+    console = console or Console(highlight=False)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    model_path = Path(model) if model is not None else default_model_path()  # fail early
+    seconds: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    with console.status('simulating the flight ...'):
+        cfg = FlightConfig(seed=seed, bank=bank)
+        if families:
+            # The library's kinds and then the families, one obstacle each of the families
+            # more than the default's six.
+            cfg = replace(cfg, families=tuple(families),
+                          obstacles=cfg.obstacles + len(families))
+        flight = simulate_flight(cfg, out / 'site.mcap', overwrite=True)
+    seconds['simulate'] = time.perf_counter() - t0
+    labels = read_labels(flight.labels)
+    lo, hi = np.asarray(labels['site']['lo']), np.asarray(labels['site']['hi'])
+    center = tuple(float(c) for c in (lo + hi) / 2)
+    console.print(f'simulated {flight.clouds} clouds, {flight.points:,} returns over '
+                  f'{flight.duration:.1f} s of flight ({flight.passes} passes at '
+                  f'{flight.speed:.1f} m/s, {flight.density:.0f} returns/m^2); '
+                  f'{flight.unsafe_tiles} of {flight.tiles} tiles unsafe -> {flight.bag}')
+
+    t0 = time.perf_counter()
+    res = replay(flight.bag, out / 'assessed.mcap', out / 'report.json', out / 'map.png',
+                 model=model_path, center=center, labels=flight.labels)
+    seconds['replay'] = time.perf_counter() - t0
+    a = res.assessment
+    scores = score_tiles(a.centers, a.p_safe, a.tile_size, labels)
+    auc, fraction, n = scores.auc, scores.judged_fraction, scores.judged
+
+    console.print(f'\nP(safe) per {a.tile_size:g} m tile ({a.frame_id} frame), '
+                  f'model {model_path.name}:')
+    console.print(tile_map(a, labels))
+    console.print(f'replayed at {res.realtime_factor:.1f}x real time '
+                  f'({res.timings["loop"]:.1f} s for {res.bag_seconds:.1f} s of flight, '
+                  f'{res.assessments} assessments, {res.timings["assess"]:.1f} s of them '
+                  'assessing)')
+    console.print(f'judged {n} of {len(labels["tiles"])} tiles ({100 * fraction:.0f} %); '
+                  + (f'AUC of P(safe) against the labels over them: {auc:.3f}'
+                     if auc is not None else 'AUC undefined (one class among the judged)'))
+    if a.sites:
+        best = a.sites[0]
+        console.print(f'best landing site: ({best.x:.1f}, {best.y:.1f}) with P(footprint '
+                      f'safe) {best.p_safe:.2f} (r = {a.footprint_radius:g} m), '
+                      f'{len(a.sites)} candidate(s)')
+    else:
+        console.print('no landing site: no footprint within the limits')
+    if a.candidates is not None:
+        from landing_zone.judging.sites import REASONS
+
+        counts = {why: int(((a.candidates.reasons >> k) & 1).sum())
+                  for k, why in enumerate(REASONS)}
+        console.print('candidate footprints left out, by reason (one may have several): '
+                      + ', '.join(f'{why} {n}' for why, n in counts.items())
+                      + f' of {a.candidates.reasons.size} (map.png hatches slope, step and '
+                      'clearance)')
+    console.print(f'wrote {out / "report.json"}, {out / "map.png"}, {out / "assessed.mcap"}')
+    return DemoResult(out, res, auc, fraction, n, seconds)

@@ -1,0 +1,1 @@
+"""Evaluation: ROC tables, leave-one-family-out, flights scored against their labels, baselines."""

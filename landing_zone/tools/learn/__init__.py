@@ -1,0 +1,1 @@
+"""Offline learning: training, calibration, architecture search, ensembles."""

@@ -1,0 +1,160 @@
+"""The layout holds: no import cycle between packages, the core imports nothing from outside
+it, what flies imports nothing from the simulator, the learning code or the benchmarks, rclpy
+only in the node, play, the node's rcl take and the live benchmarks' own ROS 2 processes, and
+no module over 500 lines but the few that are one concept.
+
+Imports are read from the source (ast), those inside functions and under TYPE_CHECKING too."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ('landing_zone', 'msg_adapters')
+# the core: the onboard pipeline's own modules, importable without ROS or the tooling
+CORE = ('landing_zone.config', 'landing_zone.errors', 'landing_zone.poses',
+        'landing_zone.assessor', 'landing_zone.mapping', 'landing_zone.judging')
+OFFLINE = ('landing_zone.tools',)
+# modules over 500 lines, each one concept (docs/ARCHITECTURE.md says why)
+LONG = {
+    'landing_zone.mapping.density_map': 'the scrolling map: its storage and its kernels',
+    'landing_zone.mapping.raytrace': 'the exact ray walk and its batch preparation',
+    'landing_zone.assessor': 'the pipeline and the Assessment it returns',
+    'landing_zone.tools.cli': 'the one typer command line',
+    'landing_zone.config': "every stage's dataclass and every parameter's facts",
+    'landing_zone.runtime.ingest': 'the live receive path: queue, gaps, its two threads',
+    'landing_zone.tools.sim.sensor': 'the scanner: patterns, nodding, noise, scans',
+    'landing_zone.tools.sim.flight': 'a simulated flight: its site, path and bag',
+    'landing_zone.tools.sim.families': 'the catalogue of obstacle families, one generator each',
+    'landing_zone.tools.sim.synth3': 'the synth3 dataset: a pair\'s plan and a scene drawn from it',
+}
+
+
+def modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob('*.py')):
+            parts = list(path.relative_to(ROOT).with_suffix('').parts)
+            if parts[-1] == '__init__':
+                parts = parts[:-1]
+            out['.'.join(parts)] = path
+    return out
+
+
+MODULES = modules()
+
+
+def imports(name: str) -> set[str]:
+    """Project modules ``name`` imports (``from pkg import sub`` counts as ``pkg.sub``)."""
+    tree = ast.parse(MODULES[name].read_text(encoding='utf-8'))
+    found: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+            found.update(f'{node.module}.{a.name}' for a in node.names
+                         if f'{node.module}.{a.name}' in MODULES)
+    return {m for m in found if m.split('.')[0] in PACKAGES and m in MODULES}
+
+
+def package_of(name: str) -> str:
+    """The node of the package graph: a subpackage of landing_zone, msg_adapters, or a module
+    of landing_zone's own (config, errors, assessor, cli, ...)."""
+    parts = name.split('.')
+    if parts[0] == 'msg_adapters':
+        return 'msg_adapters'
+    if len(parts) >= 2 and (ROOT / 'landing_zone' / parts[1]).is_dir():
+        return '.'.join(parts[:2])
+    return name
+
+
+def in_any(name: str, prefixes: tuple[str, ...]) -> bool:
+    return any(name == p or name.startswith(p + '.') for p in prefixes)
+
+
+def test_no_import_cycle_between_packages():
+    graph: dict[str, set[str]] = {}
+    for name in MODULES:
+        src = package_of(name)
+        graph.setdefault(src, set()).update(
+            package_of(m) for m in imports(name) if package_of(m) != src)
+    graph.pop('landing_zone', None)  # the lazy facade of the public API, imported by no one
+    state: dict[str, int] = {}
+    path: list[str] = []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        path.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                cycle = path[path.index(nxt):] + [nxt]
+                pytest.fail('import cycle between packages: ' + ' -> '.join(cycle))
+            if not state.get(nxt):
+                visit(nxt)
+        path.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if not state.get(node):
+            visit(node)
+    # the two the issue named: msg_adapters depends on the core, never the reverse
+    assert 'msg_adapters' not in set().union(*(graph.get(p, set()) for p in CORE))
+
+
+def test_the_core_imports_only_the_core():
+    for name in MODULES:
+        if in_any(name, CORE):
+            outside = {m for m in imports(name) if not in_any(m, CORE)}
+            assert not outside, f'{name} imports {sorted(outside)} from outside the core'
+
+
+def test_what_flies_imports_nothing_offline():
+    # everything the node imports, transitively, is what runs on the robot
+    seen, todo = set(), ['landing_zone.ros.node']
+    while todo:
+        name = todo.pop()
+        if name not in seen:
+            seen.add(name)
+            todo.extend(imports(name))
+    assert 'landing_zone.assessor' in seen and 'landing_zone.mapping.raytrace' in seen
+    offline = sorted(m for m in seen if in_any(m, OFFLINE))
+    assert not offline, f'the node reaches offline code: {offline}'
+
+
+# rclpy's users: the node and play; rcl_take (the node's take with the publisher's GID, through
+# rcl's C API in the libraries rclpy loads); the live benchmarks' publisher and observer, which
+# are ROS 2 participants of their own beside the node (offline: never imported by it)
+RCLPY_USERS = {'landing_zone.ros.node', 'landing_zone.ros.play',
+               'landing_zone.ros.rcl_take', 'landing_zone.tools.bench.live_publisher',
+               'landing_zone.tools.bench.livenode'}
+
+
+def test_rclpy_only_in_the_node_and_play():
+    users = set()
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text(encoding='utf-8'))
+        for node in ast.walk(tree):
+            mods = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                    [node.module or ''] if isinstance(node, ast.ImportFrom) else [])
+            if any(m.split('.')[0] == 'rclpy' for m in mods):
+                users.add(name)
+    assert users == RCLPY_USERS
+
+
+def test_modules_are_short_or_one_concept():
+    long = {name: len(path.read_text(encoding='utf-8').splitlines())
+            for name, path in MODULES.items()}
+    over = {n for n, lines in long.items() if lines > 500}
+    assert over <= set(LONG), f'over 500 lines and not listed as one concept: {over - set(LONG)}'
+    assert all(n in MODULES for n in LONG)  # the list holds no module that is gone
+
+
+def test_old_flat_modules_are_gone():
+    # no compatibility shims: the pre-0.3.0 paths do not import
+    for old in ('model', 'tiles', 'raytrace', 'density_map', 'sites', 'stream', 'node', 'play',
+                'replay', 'bagio', 'insert', 'train', 'evaluate', 'tune', 'calibration',
+                'baselines', 'benchmarks'):
+        assert f'landing_zone.{old}' not in MODULES, old
