@@ -26,6 +26,9 @@ __all__ = [
     'normalize_quaternion',
     'quaternion_to_matrix',
     'slerp',
+    'rpy_to_matrix',
+    'matrix_to_quaternion',
+    'Mount',
     'PoseBuffer',
 ]
 
@@ -119,6 +122,66 @@ def slerp(q0: np.ndarray, q1: np.ndarray, alpha: float) -> np.ndarray:
         q = (math.sin((1.0 - alpha) * theta) / s) * q0 + (math.sin(alpha * theta) / s) * q1
     out: np.ndarray = q / math.sqrt(float(q @ q))
     return out
+
+
+def rpy_to_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """The (3, 3) rotation of fixed-axis roll, pitch, yaw [rad] (REP-103: about x, then y,
+    then z, so R = Rz(yaw) @ Ry(pitch) @ Rx(roll), as tf2's ``setRPY``)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([
+        [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+        [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+        [-sp, cp * sr, cp * cr],
+    ])
+
+
+def matrix_to_quaternion(rotation: ArrayLike) -> np.ndarray:
+    """The unit quaternion ``(x, y, z, w)`` of a (3, 3) rotation matrix (Shepperd's method)."""
+    m = np.asarray(rotation, dtype=np.float64)
+    tr = float(m[0, 0] + m[1, 1] + m[2, 2])
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    return normalize_quaternion(q)
+
+
+class Mount:
+    """The LiDAR's pose in a frame C (the extrinsic), and what it turns C's pose into.
+
+    Args:
+        offset: ``(x, y, z, roll, pitch, yaw)`` of the LiDAR in C [m, rad].
+    """
+
+    def __init__(self, offset: ArrayLike = (0.0,) * 6) -> None:
+        o = np.asarray(offset, dtype=np.float64)
+        if o.shape != (6,) or not np.isfinite(o).all():
+            raise ConfigError(f'a sensor offset is six finite numbers, got {o.tolist()}')
+        self.t = o[:3].copy()
+        self.R = rpy_to_matrix(*o[3:])
+        self.identity = not o.any()
+
+    def sensor_pose(self, R_c: np.ndarray, t_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The LiDAR's ``(R, t)`` in the fixed frame, given C's."""
+        if self.identity:
+            return R_c, t_c
+        return R_c @ self.R, R_c @ self.t + t_c
+
+    def body_pose(self, R_s: np.ndarray, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """C's ``(R, t)`` in the fixed frame, given the LiDAR's (the inverse of
+        :meth:`sensor_pose`)."""
+        R_c = R_s @ self.R.T
+        return R_c, t_s - R_c @ self.t
 
 
 class PoseBuffer:

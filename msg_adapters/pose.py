@@ -1,4 +1,4 @@
-"""geometry_msgs Pose / PoseStamped <-> (stamp, position, quaternion) and (R, t).
+"""geometry_msgs Pose / PoseStamped and nav_msgs Odometry <-> (stamp, position, quaternion).
 
 Readers take rclpy and rosbags messages alike (attributes only); builders take a
 :class:`~msg_adapters.MessageTypes` (or a rosbags typestore, ``'rclpy'``, ``'rosbags'``) saying
@@ -22,6 +22,11 @@ if TYPE_CHECKING:
 
 __all__ = [
     'read_pose_msg',
+    'read_odometry_msg',
+    'read_pose_input',
+    'make_odometry',
+    'ODOMETRY_TYPE',
+    'POSE_TYPE',
     'pose_to_arrays',
     'pose_stamped_to_arrays',
     'pose_to_rt',
@@ -30,6 +35,9 @@ __all__ = [
     'stamp_to_ns',
     'ns_to_stamp',
 ]
+
+POSE_TYPE = 'geometry_msgs/msg/PoseStamped'
+ODOMETRY_TYPE = 'nav_msgs/msg/Odometry'
 
 
 def pose_to_arrays(pose: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -92,6 +100,42 @@ def read_pose_msg(msg: Any) -> tuple[str, int, np.ndarray, np.ndarray]:
     return (frame, *pose_stamped_to_arrays(msg))
 
 
+def read_odometry_msg(msg: Any) -> tuple[str, str, int, np.ndarray, np.ndarray]:
+    """A ``nav_msgs/Odometry`` as the stream takes it: the pose of its child frame.
+
+    Returns:
+        ``(frame_id, child_frame_id, stamp_ns, position (3,), unit quaternion (4,) xyzw)``.
+
+    Raises:
+        InvalidPoseError: Not an Odometry, non-finite, or a zero quaternion.
+    """
+    try:
+        frame, child = msg.header.frame_id, msg.child_frame_id
+        stamp_ns = stamp_to_ns(msg.header.stamp)
+        pose = msg.pose.pose
+    except AttributeError as err:
+        raise InvalidPoseError(f'not a nav_msgs/Odometry: {err}') from None
+    except (TypeError, ValueError) as err:
+        raise InvalidPoseError(f'odometry stamp is not an integer time: {err}') from None
+    return (frame, child, stamp_ns, *pose_to_arrays(pose))
+
+
+def read_pose_input(msg: Any) -> tuple[str, str | None, int, np.ndarray, np.ndarray]:
+    """A PoseStamped or an Odometry, told apart by its fields.
+
+    Returns:
+        ``(frame_id, child_frame_id, stamp_ns, position, quaternion)``; ``child_frame_id`` is
+        None for a PoseStamped (it has none) and may be '' for an Odometry that left it empty.
+
+    Raises:
+        InvalidPoseError: Neither, non-finite, or a zero quaternion.
+    """
+    if hasattr(msg, 'child_frame_id'):
+        return read_odometry_msg(msg)
+    frame, stamp_ns, position, quaternion = read_pose_msg(msg)
+    return frame, None, stamp_ns, position, quaternion
+
+
 def pose_to_rt(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     """Rotation and translation of a Pose or PoseStamped: world = R @ local + t.
 
@@ -128,6 +172,24 @@ def make_pose(position: ArrayLike, quaternion: ArrayLike,
         position=types.build('geometry_msgs/msg/Point', x=float(p[0]), y=float(p[1]),
                              z=float(p[2])),
         orientation=types.build('geometry_msgs/msg/Quaternion', x=x, y=y, z=z, w=w))
+
+
+def make_odometry(stamp_ns: int, frame_id: str, child_frame_id: str, position: ArrayLike,
+                  quaternion: ArrayLike,
+                  types: MessageTypes | Typestore | str = 'rclpy') -> Any:
+    """A ``nav_msgs/Odometry`` of ``child_frame_id`` in ``frame_id`` (covariances and twist
+    zero, as an odometry that does not estimate them publishes them).
+
+    Raises:
+        InvalidPoseError: Non-finite values or a zero quaternion.
+    """
+    from msg_adapters.grid import build
+
+    types = as_message_types(types)
+    pose = build(types, 'geometry_msgs/msg/PoseWithCovariance',
+                 pose=make_pose(position, quaternion, types))
+    return build(types, ODOMETRY_TYPE, header=make_header(stamp_ns, frame_id, types),
+                 child_frame_id=str(child_frame_id), pose=pose)
 
 
 def make_pose_stamped(stamp_ns: int, frame_id: str, position: ArrayLike, quaternion: ArrayLike,

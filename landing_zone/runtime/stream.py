@@ -3,8 +3,12 @@
 The node (live topics) and replay (a bag) differ only in where messages come from and where
 the outputs go; everything in between is here, so the same input gives the same map:
 
-1. **Poses** go into a :class:`~landing_zone.poses.PoseBuffer`. A cloud's sensor origin is the
-   pose interpolated at the cloud's ``header.stamp`` (position linearly, orientation by slerp).
+1. **Poses** (``geometry_msgs/PoseStamped`` or ``nav_msgs/Odometry``: the pose of a frame C,
+   the sensor or the odometry's body) go into a :class:`~landing_zone.poses.PoseBuffer`. A
+   cloud's sensor origin is C's pose interpolated at the cloud's ``header.stamp`` (position
+   linearly, orientation by slerp) composed with ``sensor_offset`` (the LiDAR's pose in C).
+   Clouds in the ``body`` or ``sensor`` frame (``cloud_frame``) are registered into the fixed
+   frame with that same pose; ``fixed`` clouds are taken as they are.
 2. **Clouds** are checked (frame, decodable, x/y/z floats, stamp order) and queued in stamp
    order. The head of the queue is integrated as soon as a pose at or after its stamp exists.
    A cloud newer than the newest pose waits (at most ``max_pending`` clouds, at most
@@ -20,12 +24,18 @@ Every refusal is counted by reason (:attr:`Stream.dropped_clouds`, :attr:`Stream
 and never raises to the front end: bad input costs the input, never the map.
 
 Reasons (clouds): ``malformed`` (undecodable message or missing / non-float x, y, z),
-``wrong_frame``, ``out_of_order`` (stamp older than a cloud already accepted), ``too_old``
-(before the oldest pose), ``no_pose`` (its wait ended without a pose near enough),
-``queue_full`` (more than ``max_pending`` clouds waiting). Reasons (points): the cloud's reason
-for every point of a dropped cloud, plus ``nonfinite`` (NaN/Inf rows) and ``degenerate``
-(a return at the sensor origin). Poses: ``bad_pose`` (non-finite or a zero quaternion) and
-``wrong_frame``.
+``wrong_frame`` (a ``fixed`` cloud not in ``frame_id``, a ``body`` or ``sensor`` cloud in it or a
+``body`` cloud not in the odometry's child frame; or the cloud found no pose because the poses
+were refused for their frame), ``no_child_frame`` (it found no pose because the odometry does
+not say which frame it is the pose of, and the offset or the cloud's frame needs it),
+``out_of_order`` (stamp older than a cloud already accepted), ``too_old`` (before the oldest
+pose), ``no_pose`` (its wait ended without a pose near enough), ``queue_full`` (more than
+``max_pending`` clouds waiting). Reasons (points): the cloud's reason for every point of a
+dropped cloud, plus ``nonfinite`` (NaN/Inf rows) and ``degenerate`` (a return at the sensor
+origin). Poses: ``bad_pose`` (non-finite or a zero quaternion), ``wrong_frame``,
+``no_child_frame`` (an odometry with an empty ``child_frame_id`` where one is needed) and
+``second_input`` (a PoseStamped after odometry was taken, or the reverse: the two give the
+poses of different frames, so only the first kind that came is used).
 """
 from __future__ import annotations
 
@@ -47,9 +57,10 @@ if TYPE_CHECKING:
 __all__ = ['Stream', 'CLOUD_REASONS', 'POINT_REASONS', 'POSE_REASONS']
 
 NS = 1_000_000_000
-CLOUD_REASONS = ('malformed', 'wrong_frame', 'out_of_order', 'too_old', 'no_pose', 'queue_full')
+CLOUD_REASONS = ('malformed', 'wrong_frame', 'no_child_frame', 'out_of_order', 'too_old',
+                 'no_pose', 'queue_full')
 POINT_REASONS = CLOUD_REASONS + ('nonfinite', 'degenerate')
-POSE_REASONS = ('bad_pose', 'wrong_frame')
+POSE_REASONS = ('bad_pose', 'wrong_frame', 'no_child_frame', 'second_input')
 
 
 @dataclass
@@ -88,12 +99,19 @@ class Stream:
 
     def __init__(self, assessor: Assessor, config: StreamConfig | None = None,
                  clock: Callable[[], float] = time.perf_counter) -> None:
-        from landing_zone.poses import PoseBuffer
+        from landing_zone.poses import Mount, PoseBuffer
 
         self.config = config if config is not None else StreamConfig()
         self.config.validate()
         self.assessor = assessor
         self.frame_id = assessor.config.frame_id
+        self.cloud_frame = self.config.cloud_frame
+        self.mount = Mount(self.config.sensor_offset)
+        self.pose_kind: str | None = None  # 'pose' or 'odometry': the first kind accepted
+        self.child_frame: str | None = None  # the odometry's child frame, once known
+        # (cloud reason, message) while the newest poses are refused for a reason a cloud
+        # without a pose should be counted under; None once a pose is accepted
+        self._pose_refusal: tuple[str, str] | None = None
         self.clock = clock
         self.poses_buffer = PoseBuffer(max_age_s=self.config.pose_history,
                                        tolerance_s=self.config.pose_tolerance)
@@ -129,18 +147,40 @@ class Stream:
     # -- poses ------------------------------------------------------------------------------
 
     def add_pose_msg(self, msg: Any) -> None:
-        """Add a ``geometry_msgs/PoseStamped`` (rclpy or rosbags); bad ones are counted."""
-        from msg_adapters.pose import read_pose_msg
+        """Add a ``geometry_msgs/PoseStamped`` or a ``nav_msgs/Odometry`` (rclpy or rosbags);
+        bad ones are counted."""
+        from msg_adapters.pose import read_pose_input
 
         try:
-            frame, stamp_ns, position, quaternion = read_pose_msg(msg)
+            frame, child, stamp_ns, position, quaternion = read_pose_input(msg)
         except InvalidPoseError as err:
             self._drop_pose('bad_pose', f'pose dropped: {err}')
             return
-        if frame != self.frame_id:
-            self._drop_pose('wrong_frame', f'pose dropped: frame_id {frame!r}, expected '
-                                           f'{self.frame_id!r}')
+        kind = 'pose' if child is None else 'odometry'
+        if self.pose_kind is not None and kind != self.pose_kind:
+            self._drop_pose('second_input', f'{kind} dropped: the poses come from '
+                                            f'{self.pose_kind} already (use one pose input)')
             return
+        if frame != self.frame_id:
+            message = (f'{kind} dropped: frame_id {frame!r}, expected {self.frame_id!r} (the '
+                       'parameter frame_id)')
+            self._pose_refusal = ('wrong_frame', 'cloud dropped: its pose was refused: '
+                                                 + message)
+            self._drop_pose('wrong_frame', message)
+            return
+        if child is not None and not child and self.config.needs_child_frame:
+            needs = [x for x in ('' if self.mount.identity else 'sensor_offset',
+                                 '' if self.cloud_frame == 'fixed'
+                                 else f'cloud_frame {self.cloud_frame!r}') if x]
+            message = (f'odometry dropped: child_frame_id is empty; {" and ".join(needs)} '
+                       f'need{"s" if len(needs) == 1 else ""} the frame it is the pose of')
+            self._pose_refusal = ('no_child_frame', 'cloud dropped: its pose was refused: '
+                                                    + message)
+            self._drop_pose('no_child_frame', message)
+            return
+        self.pose_kind = kind
+        if child:
+            self.child_frame = child
         self.add_pose(stamp_ns, position, quaternion)
 
     def add_pose(self, stamp_ns: int, position: Any, quaternion: Any) -> None:
@@ -151,6 +191,7 @@ class Stream:
             self._drop_pose('bad_pose', f'pose dropped: {err}')
             return
         self.poses += 1
+        self._pose_refusal = None
         self._drain(final=False)
 
     def _drop_pose(self, reason: str, message: str) -> None:
@@ -178,9 +219,9 @@ class Stream:
         except InvalidCloudError as err:
             self._drop_cloud('malformed', n_points, f'cloud dropped: {err}')
             return
-        if frame != self.frame_id:
-            self._drop_cloud('wrong_frame', n_points,
-                             f'cloud dropped: frame_id {frame!r}, expected {self.frame_id!r}')
+        wrong = self._frame_refusal(frame)
+        if wrong:
+            self._drop_cloud('wrong_frame', n_points, wrong)
             return
         try:
             xyz, nonfinite = cloud_to_xyz(msg)
@@ -190,6 +231,23 @@ class Stream:
         if nonfinite:
             self.dropped_points['nonfinite'] += nonfinite
         self._accept(stamp_ns, xyz, arrival)
+
+    def _frame_refusal(self, frame: str | None) -> str:
+        """Why a cloud in ``frame`` cannot be taken under ``cloud_frame`` ('' if it can)."""
+        if frame is None:
+            return ''
+        if self.cloud_frame == 'fixed':
+            if frame != self.frame_id:
+                return (f'cloud dropped: frame_id {frame!r}, expected {self.frame_id!r} '
+                        '(cloud_frame fixed: registered in the parameter frame_id)')
+            return ''
+        if frame == self.frame_id:
+            return (f'cloud dropped: frame_id {frame!r} is the fixed frame, but cloud_frame is '
+                    f'{self.cloud_frame!r} (set cloud_frame fixed for registered clouds)')
+        if self.cloud_frame == 'body' and self.child_frame and frame != self.child_frame:
+            return (f'cloud dropped: frame_id {frame!r}, expected the odometry\'s child frame '
+                    f'{self.child_frame!r} (cloud_frame body)')
+        return ''
 
     def reject_cloud(self, reason: str, message: str, n_points: int = 0) -> None:
         """Count a cloud received but refused before it could be read (``reason`` one of
@@ -204,9 +262,9 @@ class Stream:
         n = int(pts.shape[0]) if pts.ndim >= 1 else 0
         self.received_clouds += 1
         self.received_points += n
-        if frame_id is not None and frame_id != self.frame_id:
-            self._drop_cloud('wrong_frame', n, f'cloud dropped: frame_id {frame_id!r}, '
-                                               f'expected {self.frame_id!r}')
+        wrong = self._frame_refusal(frame_id)
+        if wrong:
+            self._drop_cloud('wrong_frame', n, wrong)
             return
         if pts.ndim != 2 or pts.shape[1] != 3 or pts.dtype.kind not in 'fiu':
             self._drop_cloud('malformed', n, f'cloud dropped: points of shape {pts.shape} '
@@ -253,14 +311,35 @@ class Stream:
                 return  # its pose may still come
             self._pending.popleft()
             try:
-                position, _ = self.poses_buffer.lookup(cloud.stamp_ns)
+                position, quaternion = self.poses_buffer.lookup(cloud.stamp_ns)
             except PoseTooOldError as err:
                 self._drop_cloud('too_old', len(cloud.xyz), f'cloud dropped: {err}')
                 continue
             except PoseNotYetError as err:
-                self._drop_cloud('no_pose', len(cloud.xyz), f'cloud dropped: {err}')
+                if self._pose_refusal is not None:  # the poses came, but were refused
+                    self._drop_cloud(self._pose_refusal[0], len(cloud.xyz),
+                                     self._pose_refusal[1])
+                else:
+                    self._drop_cloud('no_pose', len(cloud.xyz), f'cloud dropped: {err}')
                 continue
-            self._integrate(cloud, position)
+            self._integrate(*self._register(cloud, position, quaternion))
+
+    def _register(self, cloud: _Cloud, position: np.ndarray, quaternion: np.ndarray
+                  ) -> tuple[_Cloud, np.ndarray]:
+        """The cloud in the fixed frame and the sensor origin, from C's pose at its stamp."""
+        from landing_zone.poses import quaternion_to_matrix
+
+        if self.cloud_frame == 'fixed' and self.mount.identity:
+            return cloud, position
+        R_c = quaternion_to_matrix(quaternion)
+        R_s, t_s = self.mount.sensor_pose(R_c, position)
+        if self.cloud_frame == 'fixed':
+            return cloud, t_s
+        R, t = (R_c, position) if self.cloud_frame == 'body' else (R_s, t_s)
+        xyz = cloud.xyz
+        world = (np.asarray(xyz, np.float64) @ R.T + t).astype(
+            xyz.dtype if xyz.dtype.kind == 'f' else np.float64, copy=False)
+        return _Cloud(cloud.stamp_ns, world, cloud.arrival), t_s
 
     def _integrate(self, cloud: _Cloud, origin: np.ndarray) -> None:
         st = self.assessor.integrate(cloud.xyz, origin, stamp=cloud.stamp_ns / NS)

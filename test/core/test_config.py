@@ -1,4 +1,4 @@
-"""Parameter facts live once, as field metadata in landing_zone/config.py: the YAML file, the
+"""Parameter facts live once, as field metadata in landing_zone/config/: the YAML file, the
 node's descriptors and the checks of validate() all come from them."""
 from __future__ import annotations
 
@@ -27,8 +27,9 @@ def test_every_parameter_has_its_facts_and_a_default_inside_its_range():
     # 28 + the guard section's 10 + the ood section's 2 + the live node's receive_queue,
     # receive_queue_mb, qos_reliability, snapshot.path and snapshot.period + the landing
     # sites' limits (max_slope_deg, max_step, min_clearance, clutter_height) +
-    # tiles.align_to_ground
-    assert len(PARAMETERS) == 50
+    # tiles.align_to_ground + the stream's cloud_frame and sensor_offset + the node's
+    # stale_after and stale_error
+    assert len(PARAMETERS) == 54
     for name, (default, p) in PARAMETERS.items():
         assert p.description and not p.description.endswith('.'), name
         if p.range is not None:
