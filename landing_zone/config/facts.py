@@ -86,4 +86,3 @@ def _from_names(cls: Any, flat: dict[str, Any]) -> Any:
     obj = cls(**kwargs)
     obj.validate()
     return obj
-

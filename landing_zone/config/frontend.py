@@ -2,9 +2,8 @@
 receive path's bounds and the node's own."""
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from landing_zone.config.facts import _check_fields, _from_names, param
@@ -140,20 +139,6 @@ class NodeConfig:
         return cfg
 
 
-def _from_names(cls: Any, flat: dict[str, Any]) -> Any:
-    """An instance of a flat config class from the parameters named as its fields' facts say
-    (``snapshot.path`` for ``snapshot_path``), validated."""
-    kwargs = {}
-    for f in dataclasses.fields(cls):
-        p = f.metadata.get('param')
-        name = (p.name if p is not None and p.name else f.name)
-        if name in flat:
-            kwargs[f.name] = flat[name]
-    obj = cls(**kwargs)
-    obj.validate()
-    return obj
-
-
 def live_config(flat: dict[str, Any]) -> LiveConfig:
     """The receive path's settings among dotted parameters (others are ignored).
 
@@ -162,4 +147,3 @@ def live_config(flat: dict[str, Any]) -> LiveConfig:
     """
     cfg: LiveConfig = _from_names(LiveConfig, flat)
     return cfg
-

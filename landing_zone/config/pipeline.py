@@ -253,4 +253,3 @@ class AssessorConfig:
             setattr(sub, name, type(current)(value))
         cfg.validate()
         return cfg
-

@@ -25,8 +25,9 @@ The ``assessor`` node (and anything else that receives clouds as they come) driv
 * **Every cloud is accounted for**: ``clouds integrated`` plus the ``dropped clouds: REASON``
   counts equals the clouds published, once the queue is empty (docs/INTERFACES.md §1). Besides
   the stream's reasons (malformed, wrong_frame, no_child_frame, out_of_order, too_old, no_pose,
-  queue_full) there are three for clouds the stream never saw: ``transport`` (gaps in a publisher's sequence
-  numbers: lost between the publisher and this process, e.g. by DDS), ``missed_at_start`` (a
+  queue_full) there are three for clouds the stream never saw: ``transport`` (gaps in a
+  publisher's sequence numbers: lost between the publisher and this process, e.g. by DDS),
+  ``missed_at_start`` (a
   publisher's clouds before the first one that arrived: published before the subscription
   matched, or lost then) and ``overload``.
 """

@@ -89,3 +89,29 @@ def test_open_ends_are_refused_and_closed_ones_allowed():
         PARAMETERS['map.voxel_size'][1].check('map.voxel_size', 'x')
     with pytest.raises(ConfigError, match='map.size_xy must lie in'):
         AssessorConfig.from_flat({'map.size_xy': 500.0})
+
+
+def test_a_misspelt_name_is_refused_with_the_closest_real_one():
+    flat = default_parameters()
+    flat['landing_sites.footprint_radus'] = 2.0
+    with pytest.raises(ConfigError, match=r"unknown parameter 'landing_sites.footprint_radus' "
+                                          r"\(did you mean 'landing_sites.footprint_radius'\?\)"):
+        configs_from_flat(flat)
+    # rclpy's own are no misspelling
+    flat.pop('landing_sites.footprint_radus')
+    flat['use_sim_time'] = True
+    configs_from_flat(flat)
+
+
+def test_the_input_frames_and_the_stale_thresholds_are_checked():
+    flat = default_parameters()
+    _, stream, _ = configs_from_flat(dict(flat, sensor_offset=[0.1, 0, -0.2, 0, 0, 1.5],
+                                          cloud_frame='body'))
+    assert stream.sensor_offset == (0.1, 0.0, -0.2, 0.0, 0.0, 1.5) and stream.needs_child_frame
+    assert not configs_from_flat(flat)[1].needs_child_frame
+    with pytest.raises(ConfigError, match='cloud_frame must be one of fixed, body, sensor'):
+        configs_from_flat(dict(flat, cloud_frame='lidar'))
+    with pytest.raises(ConfigError, match='sensor_offset must be six finite numbers'):
+        configs_from_flat(dict(flat, sensor_offset=[0.0, 0.0, 0.0]))
+    with pytest.raises(ConfigError, match='stale_error .* must not be shorter than stale_after'):
+        NodeConfig.from_flat(dict(flat, stale_after=5.0, stale_error=2.0))
