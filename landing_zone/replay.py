@@ -36,7 +36,8 @@ if TYPE_CHECKING:
     from landing_zone.config import AssessorConfig, StreamConfig
     from landing_zone.runtime.stream import Stream
 
-__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME']
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME', 'require_inputs',
+           'POSE_TYPES']
 
 NODE_NAME = 'assessor'
 # Returns kept for the PNG's top view: every TOP_VIEW_STRIDE-th return, at most TOP_VIEW_MAX.
@@ -116,6 +117,7 @@ class _Outputs:
         return [(f'{base}/safety_grid', grid.safety_grid(assessment, stamp_ns, t)),
                 (f'{base}/safety_cloud', grid.safety_cloud(assessment, stamp_ns, t)),
                 (f'{base}/landing_sites', grid.landing_site_poses(assessment, stamp_ns, t)),
+                (f'{base}/landing_sites_cloud', grid.landing_sites_cloud(assessment, stamp_ns, t)),
                 (f'{base}/markers', grid.markers(assessment, stamp_ns, types=t)),
                 ('/diagnostics', grid.diagnostics(diagnostics, stamp_ns, types=t))]
 
@@ -137,7 +139,9 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
            progress: bool = True, labels: str | os.PathLike[str] | None = None,
            overlap: bool = True, trajectory: str | os.PathLike[str] | None = None,
-           log: Callable[[str], None] | None = None, warm: bool = True) -> ReplayResult:
+           log: Callable[[str], None] | None = None, warm: bool = True,
+           cloud_frame: str | None = None,
+           sensor_offset: Sequence[float] | None = None) -> ReplayResult:
     """Assess a recorded flight as the node would, writing its outputs.
 
     Args:
@@ -145,8 +149,9 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         out: output bag (.mcap file, or a directory) for the node's topics; None: not written.
         report: REPORT.json path; None: not written.
         png: PNG of the final safety map; None: not drawn.
-        points_topic: topic of the registered clouds (sensor_msgs/PointCloud2).
-        pose_topic: topic of the sensor poses (geometry_msgs/PoseStamped).
+        points_topic: topic of the clouds (sensor_msgs/PointCloud2).
+        pose_topic: topic of the poses: geometry_msgs/PoseStamped or nav_msgs/Odometry (the
+            type is read from the bag), the pose of a frame C (docs/INTERFACES.md §1).
         model: model file; default the config's, else the shipped model.
         center: (x, y) of a fixed region of interest; default: follow the sensor.
         config: the pipeline's configuration; default AssessorConfig().
@@ -161,6 +166,10 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         log: called with each line worth telling the user (a survey's assumptions).
         warm: run :func:`~landing_zone.runtime.ingest.warm_up` in the set-up, as the node
             does (False: the first clouds and pass pay for loading the kernels, in the loop).
+        cloud_frame: where the returns are: 'fixed', 'body' (in C) or 'sensor' (in the
+            LiDAR's frame); default the stream config's (fixed).
+        sensor_offset: (x, y, z, roll, pitch, yaw) of the LiDAR in C [m, rad]; default the
+            stream config's (zeros).
 
     Returns:
         A :class:`ReplayResult`.
@@ -174,7 +183,7 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
 
     from landing_zone.assessor import Assessor
     from landing_zone.runtime.ingest import warm_up
-    from landing_zone.io.bags import BagWriter, read_messages, require_topics
+    from landing_zone.io.bags import BagWriter, read_messages
     from landing_zone.io.survey import is_survey, read_survey
     from landing_zone.runtime.stream import Stream
 
@@ -184,7 +193,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     if is_survey(bag):
         survey = read_survey(bag, trajectory, log=log)
     else:
-        require_topics(bag, points_topic, pose_topic)
+        require_inputs(bag, points_topic, pose_topic)
+    stream_config = _with_frames(stream_config, cloud_frame, sensor_offset)
     if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
         raise ConfigError(f'center must be two finite numbers, got {center!r}')
     if survey is not None and center is not None:
@@ -282,6 +292,44 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     res.timings['report'] = time.perf_counter() - t_report
     res.seconds = time.perf_counter() - t_start
     return res
+
+
+POSE_TYPES = ('geometry_msgs/msg/PoseStamped', 'nav_msgs/msg/Odometry')
+
+
+def require_inputs(bag: str | os.PathLike[str], points_topic: str, pose_topic: str) -> None:
+    """Raise BagError unless the bag has a PointCloud2 topic ``points_topic`` and a
+    PoseStamped or Odometry topic ``pose_topic`` (one line)."""
+    from landing_zone.io.bags import bag_topics
+
+    topics = bag_topics(bag)
+    for topic, want in ((points_topic, ('sensor_msgs/msg/PointCloud2',)),
+                        (pose_topic, POSE_TYPES)):
+        if topic not in topics:
+            raise BagError(f'{bag} lacks topic {topic} (it has '
+                           f'{", ".join(sorted(topics)) or "no topics"}); choose with '
+                           '--points-topic / --pose-topic')
+        if topics[topic] not in want:
+            raise BagError(f'{bag}: topic {topic} carries {topics[topic] or "an unknown type"}, '
+                           f'expected {" or ".join(want)}')
+
+
+def _with_frames(stream_config: StreamConfig | None, cloud_frame: str | None,
+                 sensor_offset: Sequence[float] | None) -> StreamConfig | None:
+    """The stream config with ``cloud_frame`` and ``sensor_offset`` set where given."""
+    if cloud_frame is None and sensor_offset is None:
+        return stream_config
+    import dataclasses
+
+    from landing_zone.config import StreamConfig as _StreamConfig
+
+    out = dataclasses.replace(stream_config) if stream_config is not None else _StreamConfig()
+    if cloud_frame is not None:
+        out.cloud_frame = str(cloud_frame)
+    if sensor_offset is not None:
+        out.sensor_offset = tuple(sensor_offset)
+    out.validate()
+    return out
 
 
 class _Passes:

@@ -11,6 +11,9 @@ the same content into its .mcap:
   then slope_deg, roughness and clearance of the tile's ground (NaN without a ground plane).
 * :func:`landing_site_poses`: ``geometry_msgs/PoseArray``, best first, at the ground, each
   oriented with its z axis along the footprint's ground normal.
+* :func:`landing_sites_cloud`: ``sensor_msgs/PointCloud2``, the same sites in the same order, one
+  point each at (x, y, ground z), FLOAT32 fields x, y, z, p_safe, slope_deg, step, clearance: what
+  a planner reads live to act on a site.
 * :func:`markers`: ``visualization_msgs/MarkerArray``: the tiles as a cube list coloured from
   green (safe) through yellow to red (unsafe), grey unknown; a disc of the footprint per site;
   over every candidate left out for a reason other than ``unknown``, that reason as text.
@@ -42,6 +45,8 @@ __all__ = [
     'safety_grid',
     'safety_cloud',
     'landing_site_poses',
+    'landing_sites_cloud',
+    'SITE_FIELDS',
     'markers',
     'reason_text',
     'diagnostics',
@@ -52,6 +57,7 @@ OUTPUT_TYPES = {
     'safety_grid': 'nav_msgs/msg/OccupancyGrid',
     'safety_cloud': 'sensor_msgs/msg/PointCloud2',
     'landing_sites': 'geometry_msgs/msg/PoseArray',
+    'landing_sites_cloud': 'sensor_msgs/msg/PointCloud2',
     'markers': 'visualization_msgs/msg/MarkerArray',
 }
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
@@ -225,6 +231,24 @@ def landing_site_poses(assessment: Assessment, stamp_ns: int,
                    normal_quaternion(s.normal)) for s in assessment.sites]
     return types.build('geometry_msgs/msg/PoseArray',
                        header=make_header(stamp_ns, assessment.frame_id, types), poses=poses)
+
+
+# The fields of ~/landing_sites_cloud beside x, y, z (docs/INTERFACES.md §1).
+SITE_FIELDS = ('p_safe', 'slope_deg', 'step', 'clearance')
+
+
+def landing_sites_cloud(assessment: Assessment, stamp_ns: int,
+                        types: MessageTypes | Typestore | str = 'rclpy') -> Any:
+    """The landing sites of :func:`landing_site_poses`, in the same order, as a PointCloud2:
+    one point per site at (x, y, ground z), FLOAT32 ``p_safe`` (P(every tile under the
+    footprint safe)), ``slope_deg`` [deg], ``step`` [m] and ``clearance`` [m] (NaN unknown)."""
+    types = as_message_types(types)
+    sites = assessment.sites
+    xyz = np.array([[s.x, s.y, s.z] for s in sites], np.float64).reshape(-1, 3)
+    arr = points_to_structured(xyz, {
+        name: np.array([getattr(s, name) for s in sites], np.float32) for name in SITE_FIELDS},
+        dtype=np.float32)
+    return make_cloud(arr, make_header(stamp_ns, assessment.frame_id, types), types)
 
 
 def tile_colors(p_safe: np.ndarray) -> np.ndarray:
