@@ -1,10 +1,14 @@
 """The ROS 2 front end: the ``assessor`` node (``ros2 run landing_zone assessor``).
 
-Topics (docs/INTERFACES.md §1): registered clouds on ``points`` and the sensor pose on
-``sensor_pose`` in (sensor-data QoS: best effort, so it matches reliable and best-effort
-publishers alike; ``qos_reliability: reliable`` asks for retransmission); ``~/safety_grid``,
-``~/safety_cloud``, ``~/landing_sites``, ``~/markers`` out (reliable, transient local, depth 1, so
-a planner that joins late gets the latest), and ``/diagnostics``.
+Topics (docs/INTERFACES.md §1): clouds on ``points`` and the pose of a frame C on
+``sensor_pose`` (PoseStamped: the sensor) or ``odometry`` (nav_msgs/Odometry: its child frame, the
+body), whichever is published, in (sensor-data QoS: best effort, so it matches reliable and
+best-effort publishers alike; ``qos_reliability: reliable`` asks for retransmission). The clouds
+are registered in ``frame_id`` or, with ``cloud_frame`` ``body`` or ``sensor``, in C or in the
+LiDAR's frame (``sensor_offset`` in C), and registered here with C's pose at their stamp.
+``~/safety_grid``, ``~/safety_cloud``, ``~/landing_sites``, ``~/landing_sites_cloud`` (each
+site's P(safe), slope, step and clearance), ``~/markers`` out (reliable, transient local, depth
+1, so a planner that joins late gets the latest), and ``/diagnostics``.
 
 The node is a thin adapter over :class:`~landing_zone.runtime.ingest.LivePipeline`, which
 drives the :class:`~landing_zone.runtime.stream.Stream` and
@@ -25,9 +29,14 @@ drives the :class:`~landing_zone.runtime.stream.Stream` and
 * **overload** (input faster than integration): the receive queue keeps the newest
   ``receive_queue`` clouds, the oldest are dropped and counted as ``overload``, diagnostics go
   WARN, and all of it recovers by itself when the input slows down;
-* bad input (malformed clouds, NaN/Inf, wrong frame, out-of-order stamps, no pose yet) is
-  counted by reason and warned about at most every ``warn_period`` seconds per reason; the map
-  is never touched by it;
+* bad input (malformed clouds, NaN/Inf, wrong frame, an odometry without the child frame the
+  offset needs, out-of-order stamps, no pose yet) is counted by reason and warned about at most
+  every ``warn_period`` seconds per reason; the map is never touched by it;
+* **stale input**: ``/diagnostics`` carries the age of the newest cloud and pose and goes WARN
+  when either has not come for ``stale_after`` seconds, ERROR past ``stale_error``, and OK again
+  by itself when they resume;
+* a parameter the node does not have (a misspelt name on the command line or in a parameters
+  file) stops it at start with one line naming the closest real name;
 * the map is saved to ``snapshot.path`` every ``snapshot.period`` seconds and on shutdown
   (:mod:`landing_zone.runtime.snapshot`); a restart reloads it when frame, map and region match.
 
@@ -57,9 +66,9 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
                        qos_profile_sensor_data)
 
 from landing_zone.config import (PARAMETERS, SECTIONS, NodeConfig, configs_from_flat,
-                                 default_parameters, live_config)
+                                 default_parameters, live_config, unknown_parameter_error)
 from landing_zone.errors import ConfigError, LandingZoneError
-from landing_zone.runtime.ingest import LivePipeline
+from landing_zone.runtime.ingest import LivePipeline, stale_level
 from landing_zone.runtime.stream import NS, Stream
 
 __all__ = ['AssessorNode', 'main']
@@ -71,6 +80,23 @@ QOS_RELIABILITY = {'best_effort': ReliabilityPolicy.BEST_EFFORT,
                    'reliable': ReliabilityPolicy.RELIABLE}
 # Messages the executor takes from a subscription in one go (then it looks at the others).
 TAKE_BATCH = 64
+_LEVELS = ('OK', 'WARN', 'ERROR')
+USAGE = """usage: assessor [-h] [--version] [--ros-args ...]
+
+The landing_zone assessor node: LiDAR clouds and poses in, a per-tile P(safe) grid and
+landing sites out (docs/ROS_NODE.md, docs/INTERFACES.md).
+
+examples:
+  ros2 run landing_zone assessor --ros-args --params-file config/assessor.yaml
+  assessor --ros-args -r points:=/cloud_registered -r odometry:=/Odometry
+  assessor --ros-args -r points:=/cloud_registered_body -r odometry:=/Odometry \\
+      -p cloud_frame:=body -p "sensor_offset:=[0.0, 0.0, 0.1, 0.0, 0.0, 0.0]"
+  ros2 launch landing_zone assessor.launch.py odometry:=/Odometry cloud_frame:=body
+
+options:
+  -h, --help  show this help and exit
+  --version   print the version and exit
+"""
 
 
 def _descriptor(name: str, value: Any) -> ParameterDescriptor:
@@ -120,6 +146,11 @@ class AssessorNode(Node):
                                    description=PARAMETERS['region_center'][1].text,
                                    read_only=True))
         self._names = list(defaults) + ['region_center']
+        # a name given on the command line or in a parameters file that is no parameter here:
+        # refuse to start rather than run with the default the user meant to change
+        unknown = unknown_parameter_error(sorted(self._parameter_overrides))
+        if unknown is not None:
+            raise unknown
         config, stream_config, rest = configs_from_flat(self._flat())
         NodeConfig.from_flat(rest)
         live = live_config(rest)
@@ -152,10 +183,11 @@ class AssessorNode(Node):
         from nav_msgs.msg import OccupancyGrid
         from sensor_msgs.msg import PointCloud2
         from visualization_msgs.msg import MarkerArray
-        self._pub_grid = self.create_publisher(OccupancyGrid, '~/safety_grid', latched)
-        self._pub_cloud = self.create_publisher(PointCloud2, '~/safety_cloud', latched)
-        self._pub_sites = self.create_publisher(PoseArray, '~/landing_sites', latched)
-        self._pub_markers = self.create_publisher(MarkerArray, '~/markers', latched)
+        self._pubs = [self.create_publisher(OccupancyGrid, '~/safety_grid', latched),
+                      self.create_publisher(PointCloud2, '~/safety_cloud', latched),
+                      self.create_publisher(PoseArray, '~/landing_sites', latched),
+                      self.create_publisher(PointCloud2, '~/landing_sites_cloud', latched),
+                      self.create_publisher(MarkerArray, '~/markers', latched)]
         self._pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.pipeline.start()
         if self._restored is not None:
@@ -169,7 +201,8 @@ class AssessorNode(Node):
             f'{t_warm:.2f} s): assessing {config.map.size_xy:g} m of '
             f'{config.tiles.tile_size:g} m tiles in frame {config.frame_id!r}, {mode}; model '
             f'{self.assessor.model_path} ({self.assessor.model.config.spec}); OOD reference '
-            f'{self._ood_text()}; listening on {self._points_topic}')
+            f'{self._ood_text()}; listening on {self._points_topic} ({stream_config.cloud_frame} '
+            f'frame) with poses from {self._pose_topics}')
 
     def _ood_text(self) -> str:
         """Which OOD reference judges with the model, for the log and /diagnostics."""
@@ -182,6 +215,7 @@ class AssessorNode(Node):
     def _subscribe(self, rest: dict[str, Any], t_start: float) -> float:
         """Create the input subscriptions (the last thing the node does before it is ready)."""
         from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Odometry
         from sensor_msgs.msg import PointCloud2
 
         from landing_zone.ros.rcl_take import taker, taker_error
@@ -214,7 +248,10 @@ class AssessorNode(Node):
             sub = self.create_subscription(PointCloud2, 'points', self._on_raw, sensor_qos,
                                            raw=True)
         self._points_topic = sub.topic_name
-        self.create_subscription(PoseStamped, 'sensor_pose', self._on_pose, sensor_qos)
+        # either pose input; the stream takes the first kind that comes and counts the other
+        poses = [self.create_subscription(PoseStamped, 'sensor_pose', self._on_pose, sensor_qos),
+                 self.create_subscription(Odometry, 'odometry', self._on_pose, sensor_qos)]
+        self._pose_topics = ' or '.join(p.topic_name for p in poses)
         return time.perf_counter() - t_start
 
     def destroy_node(self) -> None:
@@ -289,7 +326,8 @@ class AssessorNode(Node):
         from msg_adapters import grid
 
         return [grid.safety_grid(result, stamp), grid.safety_cloud(result, stamp),
-                grid.landing_site_poses(result, stamp), grid.markers(result, stamp)]
+                grid.landing_site_poses(result, stamp), grid.landing_sites_cloud(result, stamp),
+                grid.markers(result, stamp)]
 
     def _publish(self, result: Any, stamp: int | None = None) -> None:
         if stamp is None:
@@ -299,8 +337,7 @@ class AssessorNode(Node):
         msgs = self._build(result, stamp)
         with self._publish_lock:
             try:
-                for pub, msg in zip((self._pub_grid, self._pub_cloud, self._pub_sites,
-                                     self._pub_markers), msgs):
+                for pub, msg in zip(self._pubs, msgs):
                     pub.publish(msg)
             except RCLError:
                 if rclpy.ok(context=self.context):
@@ -378,6 +415,11 @@ class AssessorNode(Node):
             level, message = 'ERROR', f'internal error: {self.pipeline.errors[-1]!r}'
         else:
             level, message = 'OK', f'{self.stream.clouds} clouds integrated'
+        stale, why = stale_level(self.pipeline.input_ages(), float(self.settings['stale_after']),
+                                 float(self.settings['stale_error']))
+        if stale != 'OK':
+            message = why if level == 'OK' else f'{why}; {message}'
+            level = max(level, stale, key=_LEVELS.index)
         self._pub_diag.publish(grid.diagnostics(values, self.get_clock().now().nanoseconds,
                                                 name=f'{self.get_name()}: landing zone',
                                                 level=level, message=message))
@@ -387,6 +429,15 @@ def main(args: list[str] | None = None) -> None:
     """Entry point of ``assessor`` (talker_qos.py's shutdown idiom); exit 1 if it cannot start."""
     from landing_zone.ros.rcl_take import executor_with_taker
 
+    argv = list(sys.argv if args is None else args)
+    own = argv[1:argv.index('--ros-args')] if '--ros-args' in argv else argv[1:]
+    if '-h' in own or '--help' in own:
+        print(USAGE, end='')
+        return
+    if '--version' in own:
+        from landing_zone import __version__
+        print(f'assessor (landing_zone) {__version__}')
+        return
     rclpy.init(args=args)
     node = None
     code = 0

@@ -7,6 +7,10 @@ rclpy's serialized publish (the wire format is the one thing both implementation
 and nothing is deserialized on the way), in log-time order, each at
 ``start + (log_time - first_log_time) / rate``.
 
+By default it first waits (up to ``wait_subscribers`` seconds) until the topics have their
+subscribers and the subscriptions have matched, so a node that is already up gets the bag
+whole: a message published before the match is lost to it (``missed_at_start``).
+
 ``loops`` plays the bag again and again (a soak test); with ``restamp`` every pass after the
 first is shifted in time, log time and the ``header.stamp`` of every message that starts with a
 ``std_msgs/Header`` alike, by whole bag spans, so the stamps keep increasing as a live sensor's do.
@@ -24,7 +28,17 @@ from typing import Any
 
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['PlayStats', 'parse_remaps', 'play']
+__all__ = ['PlayStats', 'parse_remaps', 'play', 'wait_for_subscribers', 'WAIT_SUBSCRIBERS']
+
+# How long play waits for subscribers by default [s]: a node starting beside it is ready in a
+# few seconds (model, warm-up) before it subscribes.
+WAIT_SUBSCRIBERS = 30.0
+# Once one topic has a subscriber, how long the others may take [s]: a node subscribes to all
+# its inputs at once, so a topic still without one then is one nobody listens to.
+SETTLE_OTHERS = 2.0
+# After discovery, time for the subscriber's side of the match (the reader must know the writer
+# too, or it drops what the writer sends) [s].
+MATCH_SETTLE = 0.5
 
 
 @dataclass
@@ -37,6 +51,7 @@ class PlayStats:
     seconds: float = 0.0  # wall time from the first message to the last [s]
     late: float = 0.0  # the most a message was published after its due time [s]
     loops: int = 0  # passes over the bag begun
+    subscribed: int = -1  # topics that had a subscriber when it began (-1: it did not wait)
 
 
 def parse_remaps(remaps: Iterable[str] | None) -> dict[str, str]:
@@ -54,8 +69,26 @@ def parse_remaps(remaps: Iterable[str] | None) -> dict[str, str]:
     return out
 
 
+def wait_for_subscribers(pubs: Iterable[Any], timeout: float) -> int:
+    """Wait until every publisher has a subscriber (or, once one has, :data:`SETTLE_OTHERS`
+    for the rest), then :data:`MATCH_SETTLE`; return how many have one."""
+    pubs = list(pubs)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        have = sum(p.get_subscription_count() > 0 for p in pubs)
+        if have == len(pubs):
+            break
+        if have:
+            deadline = min(deadline, time.monotonic() + SETTLE_OTHERS)
+        time.sleep(0.05)
+    have = sum(p.get_subscription_count() > 0 for p in pubs)
+    if have:
+        time.sleep(MATCH_SETTLE)
+    return have
+
+
 def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] | None = None,
-         remap: dict[str, str] | None = None, wait_subscribers: float = 0.0,
+         remap: dict[str, str] | None = None, wait_subscribers: float = WAIT_SUBSCRIBERS,
          linger: float = 0.5, progress: bool = True, qos_depth: int = 100,
          context: Any = None, reliability: str = 'reliable', loops: int = 1,
          restamp: bool = False, duration: float | None = None,
@@ -67,8 +100,8 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
         rate: playback speed (2.0: twice as fast).
         topics: only these topics (each must be in the bag); default all.
         remap: bag topic -> published topic.
-        wait_subscribers: wait up to this long [s] until every topic has a subscriber before
-            the first message (0: start at once).
+        wait_subscribers: wait up to this long [s] until the topics have subscribers before
+            the first message (:func:`wait_for_subscribers`; 0: start at once).
         linger: keep the publishers alive this long [s] after the last message, so reliable
             transports deliver it.
         progress: show a tqdm progress bar (on a terminal).
@@ -123,10 +156,7 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
             cls = types.get(available[topic])
             pubs[topic] = node.create_publisher(cls, remap.get(topic, topic), qos)
         if wait_subscribers > 0:
-            deadline = time.monotonic() + wait_subscribers
-            while time.monotonic() < deadline and not all(
-                    p.get_subscription_count() > 0 for p in pubs.values()):
-                time.sleep(0.05)
+            stats.subscribed = wait_for_subscribers(pubs.values(), wait_subscribers)
         start_wall = None
         first_ns = last_ns = 0
         span_ns = 0
