@@ -437,8 +437,11 @@ def test_clouds_lost_in_transport_are_counted_from_sequence_gaps(model_file, lis
 @pytest.mark.slow
 def test_overload_keeps_the_newest_goes_warn_and_recovers(flight, model_file, listener):
     bag, stamps = flight
+    # the stale-input alarm (test_node_inputs) would go WARN when the bag ends: this is about
+    # the overload's own recovery
     node = start_node('-p', f'model.path:={model_file}', '-p', 'diagnostics_period:=0.2',
-                      '-p', 'receive_queue:=2', *NODE_ARGS)
+                      '-p', 'receive_queue:=2', '-p', 'stale_after:=60.0',
+                      '-p', 'stale_error:=120.0', *NODE_ARGS)
     try:
         play(bag, '--rate', 16.0, '--reliability', 'best_effort')  # 4 M returns/s
         assert listener.spin_until(lambda: listener.accounted(len(stamps)), timeout=60), \
