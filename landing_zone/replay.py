@@ -302,32 +302,25 @@ def require_inputs(bag: str | os.PathLike[str], points_topic: str, pose_topic: s
     PoseStamped or Odometry topic ``pose_topic`` (one line)."""
     from landing_zone.io.bags import bag_topics
 
-    topics = bag_topics(bag)
-    for topic, want in ((points_topic, ('sensor_msgs/msg/PointCloud2',)),
-                        (pose_topic, POSE_TYPES)):
-        if topic not in topics:
-            raise BagError(f'{bag} lacks topic {topic} (it has '
-                           f'{", ".join(sorted(topics)) or "no topics"}); choose with '
-                           '--points-topic / --pose-topic')
-        if topics[topic] not in want:
+    topics, points = bag_topics(bag), ('sensor_msgs/msg/PointCloud2',)
+    for topic, want in ((points_topic, points), (pose_topic, POSE_TYPES)):
+        have = sorted(topics) or ['no topics']
+        if topics.get(topic) not in want:
             raise BagError(f'{bag}: topic {topic} carries {topics[topic] or "an unknown type"}, '
-                           f'expected {" or ".join(want)}')
+                           f'expected {" or ".join(want)}' if topic in topics else
+                           f'{bag} lacks topic {topic} (it has {", ".join(have)}); choose with '
+                           '--points-topic / --pose-topic')
 
 
 def _with_frames(stream_config: StreamConfig | None, cloud_frame: str | None,
                  sensor_offset: Sequence[float] | None) -> StreamConfig | None:
     """The stream config with ``cloud_frame`` and ``sensor_offset`` set where given."""
-    if cloud_frame is None and sensor_offset is None:
-        return stream_config
-    import dataclasses
+    from dataclasses import replace
 
     from landing_zone.config import StreamConfig as _StreamConfig
-
-    out = dataclasses.replace(stream_config) if stream_config is not None else _StreamConfig()
-    if cloud_frame is not None:
-        out.cloud_frame = str(cloud_frame)
-    if sensor_offset is not None:
-        out.sensor_offset = tuple(sensor_offset)
+    out = replace(stream_config if stream_config is not None else _StreamConfig(),
+                  **{k: v for k, v in (('cloud_frame', cloud_frame),
+                                       ('sensor_offset', sensor_offset)) if v is not None})
     out.validate()
     return out
 
