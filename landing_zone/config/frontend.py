@@ -80,6 +80,12 @@ class LiveConfig:
         1.0, 'After this long without input, waiting clouds are settled and the last ones '
         'assessed', 's', (0.05, 60.0))
 
+    # the cloud-to-grid latency: with passes only every assessment_period of stamp time a
+    # cloud waits half a period on average before a pass takes it in
+    eager_interval: float = param(
+        0.25, 'A pass also starts before it is due once integration has caught up and this '
+        'long passed since the last began; 0: only every assessment_period', 's', (0.0, 60.0))
+
     def validate(self) -> None:
         if isinstance(self.receive_queue, bool) or not isinstance(self.receive_queue, int):
             raise ConfigError(f'receive_queue must be a positive integer, got '

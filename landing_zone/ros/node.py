@@ -292,6 +292,7 @@ class AssessorNode(Node):
             setattr(self.stream.config, name, value)
         self.stream.poses_buffer.tolerance_ns = int(round(stream_config.pose_tolerance * NS))
         self.pipeline.config.idle_flush = float(rest['idle_flush'])
+        self.pipeline.config.eager_interval = float(rest['eager_interval'])
         self.settings.update(rest)
         if any(p.name.startswith(('tiles.', 'guard.')) or p.name == 'landing_sites.clutter_height'
                for p in params):
@@ -322,23 +323,26 @@ class AssessorNode(Node):
 
     # -- output (the assessment thread) ----------------------------------------------------
 
-    def _build(self, result: Any, stamp: int = 0) -> list[Any]:
+    def _builders(self) -> list[Any]:
+        """The message builders, in the order of the publishers (the grid first: it goes out
+        before the others are built)."""
         from msg_adapters import grid
 
-        return [grid.safety_grid(result, stamp), grid.safety_cloud(result, stamp),
-                grid.landing_site_poses(result, stamp), grid.landing_sites_cloud(result, stamp),
-                grid.markers(result, stamp)]
+        return [grid.safety_grid, grid.safety_cloud, grid.landing_site_poses,
+                grid.landing_sites_cloud, grid.markers]
+
+    def _build(self, result: Any, stamp: int = 0) -> list[Any]:
+        return [build(result, stamp) for build in self._builders()]
 
     def _publish(self, result: Any, stamp: int | None = None) -> None:
         if stamp is None:
             stamp = self.stream.assessed_stamp_ns
         if stamp is None:
             stamp = self.get_clock().now().nanoseconds
-        msgs = self._build(result, stamp)
         with self._publish_lock:
             try:
-                for pub, msg in zip(self._pubs, msgs):
-                    pub.publish(msg)
+                for pub, build in zip(self._pubs, self._builders()):
+                    pub.publish(build(result, stamp))
             except RCLError:
                 if rclpy.ok(context=self.context):
                     raise  # shutting down: the last grid may find the context gone

@@ -150,19 +150,42 @@ def _fmt_row(r: dict[str, Any]) -> str:
             f'{r["rss_mb"]:.0f} ({r["rss_peak_mb"]:.0f}) |')
 
 
-def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
-    """Both sweeps and the DDS comparison; print the tables, return the figures."""
+def parse_rate(text: str) -> tuple[int, int]:
+    """``'50000x20'`` (returns per cloud x clouds per second) or ``'1M'`` / ``'0.3M'`` (returns
+    per second, at 20 Hz) -> (returns per cloud, Hz)."""
+    t = text.strip().lower()
+    if 'x' in t:
+        points, hz = t.split('x', 1)
+        return int(float(points)), int(hz)
+    per_s = float(t[:-1]) * 1e6 if t.endswith('m') else float(t)
+    return int(round(per_s / 20)), 20
+
+
+def run(batches: int = 30, seed: int = 0, rates: list[tuple[int, int]] | None = None,
+        reliabilities: tuple[str, ...] = ('best_effort', 'reliable'), compare_dds: bool = True,
+        params: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Both sweeps and the DDS comparison; print the tables, return the figures.
+
+    Args:
+        batches: 3 per second of each rate (at least 5 s).
+        seed: the flight's and the model's.
+        rates: (returns per cloud, Hz) to step through; default :data:`RATES`.
+        reliabilities: the publishers' QoS reliabilities to sweep.
+        compare_dds: also compare the DDS settings at 1 M returns/s.
+        params: node parameters over :data:`NODE_PARAMS` (``assessment_period``, ...).
+    """
     seconds = max(5.0, batches / 3)
     print(f'{load_line()} at the start; {seconds:.0f} s per rate')
     domain = bench_domain()
+    model_extra = dict(params or {})
     with tempfile.TemporaryDirectory(prefix='lz_bench_live_') as tmpdir:
         tmp = Path(tmpdir)
         bag = _flight(tmp, seed)
-        model = _model_params(tmp, seed)
-        rows, ready = _sweep(dds_env(domain, True), bag, tmp, seconds, seed, RATES,
-                             ('best_effort', 'reliable'), model, 'shm')
+        model = {**_model_params(tmp, seed), **model_extra}
+        rows, ready = _sweep(dds_env(domain, True), bag, tmp, seconds, seed, rates or RATES,
+                             reliabilities, model, 'shm')
         compare = []
-        for profile in (False, True):
+        for profile in (False, True) if compare_dds else ():
             r, _ = _sweep(dds_env(domain, profile), bag, tmp, min(seconds, 5.0), seed,
                           [(50_000, 20)], ('best_effort', 'reliable'), model,
                           f'cmp{int(profile)}')

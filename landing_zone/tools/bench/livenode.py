@@ -28,7 +28,7 @@ def bench_domain() -> int:
 
 def config_file(name: str) -> Path:
     """A file of the package's ``config/`` (source tree, or ``share/landing_zone/config``)."""
-    for directory in (Path(__file__).resolve().parents[2] / 'config',
+    for directory in (Path(__file__).resolve().parents[3] / 'config',
                       Path(sys.prefix) / 'share' / 'landing_zone' / 'config'):
         if (directory / name).is_file():
             return directory / name
