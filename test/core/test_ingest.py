@@ -224,3 +224,53 @@ def test_threads_stop_and_errors_are_kept_not_raised(model_file):
     p.stop()
     assert p.stream.dropped_clouds['malformed'] == 1 and not p.errors
     assert not [t for t in threading.enumerate() if t.name.startswith('lz-')]
+
+
+def test_input_ages_give_the_stale_level():
+    from landing_zone.runtime.ingest import stale_level
+
+    assert stale_level({'cloud': None, 'pose': None}, 1.0, 3.0) == (
+        'WARN', 'no cloud received yet, no pose received yet')
+    assert stale_level({'cloud': 0.2, 'pose': 0.1}, 1.0, 3.0) == ('OK', '')
+    level, why = stale_level({'cloud': 1.5, 'pose': 0.1}, 1.0, 3.0)
+    assert level == 'WARN' and why == 'no cloud for 1.5 s (stale_after 1 s)'
+    level, why = stale_level({'cloud': 0.1, 'pose': 4.0}, 1.0, 3.0)
+    assert level == 'ERROR' and why == 'no pose for 4.0 s (stale_error 3 s)'
+    # the ages follow the arrivals, on the pipeline's clock
+    now = [10.0]
+    p = LivePipeline(Stream(Assessor(small_config())), clock=lambda: now[0])
+    try:
+        assert p.input_ages() == {'cloud': None, 'pose': None}
+        p.offer_cloud(b'not a cloud')
+        now[0] = 11.5
+        p.offer_pose(object())
+        now[0] = 12.0
+        assert p.input_ages() == {'cloud': 2.0, 'pose': 0.5}
+        d = p.diagnostics()
+        assert d['newest cloud age [s]'] == '2.00' and d['newest pose age [s]'] == '0.50'
+    finally:
+        p.stream.assessor.close()
+
+
+def test_eager_passes_only_while_integration_has_room(model_file):
+    now = [0.0]
+    stream = Stream(Assessor(small_config()))
+    p = LivePipeline(stream, LiveConfig(eager_interval=0.25), clock=lambda: now[0])
+    try:
+        assert not p._eager()  # nothing to assess
+        stream.add_pose(0, [0.0, 0.0, 8.0], [0, 0, 0, 1])
+        stream.add_cloud(0, np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.0]]))
+        assert stream.unassessed == 1 and p._eager()
+        p._last_pass = 0.0
+        now[0] = 0.1
+        assert not p._eager()  # within eager_interval of the last pass
+        now[0] = 0.3
+        assert p._eager()
+        p._work.append((0.3, 0.6))  # integration busy 60 % of the last second
+        assert not p._eager()
+        now[0] = 1.5  # that work is older than a second
+        assert p._eager()
+        p.config.eager_interval = 0.0
+        assert not p._eager()
+    finally:
+        stream.assessor.close()
