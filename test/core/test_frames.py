@@ -130,3 +130,20 @@ def test_unusable_odometry_is_a_counted_drop_with_a_warning_naming_it():
     s.add_cloud_msg(_cloud(types, stamp, 'map'))
     s.flush()
     assert s.dropped_clouds['no_pose'] == 1
+
+
+def test_simulate_odometry_flight_writes_the_bag_and_its_labels(tmp_path):
+    from landing_zone.io.bags import bag_topics
+    from landing_zone.tools.sim.flight import FlightConfig
+    from landing_zone.tools.sim.odometry_flight import simulate_odometry_flight
+
+    flight, odom = simulate_odometry_flight(
+        FlightConfig(seed=1, size=6.0, obstacles=1, lines_per_cloud=14), tmp_path / 'o.mcap',
+        cloud_frame='sensor', sensor_offset=(0.0, 0.1, -0.1, 0.05, 0.2, 0.0))
+    assert odom.bag.is_file() and odom.labels == tmp_path / 'o.labels.json'
+    assert odom.labels.is_file() and odom.clouds == flight.clouds
+    assert bag_topics(odom.bag) == {'/lidar/points': 'sensor_msgs/msg/PointCloud2',
+                                    '/odometry': 'nav_msgs/msg/Odometry'}
+    assert odom.replay_args() == ['--points-topic', '/lidar/points', '--pose-topic', '/odometry',
+                                  '--cloud-frame', 'sensor', '--sensor-offset', '0', '0.1',
+                                  '-0.1', '0.05', '0.2', '0']

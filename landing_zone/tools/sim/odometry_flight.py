@@ -22,7 +22,7 @@ import numpy as np
 
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['OdometryFlight', 'odometry_flight', 'DEFAULT_OFFSET']
+__all__ = ['OdometryFlight', 'odometry_flight', 'simulate_odometry_flight', 'DEFAULT_OFFSET']
 
 # The LiDAR 0.2 m ahead of and 0.15 m below the body's origin, pitched 0.3 rad down and yawed
 # a little: an extrinsic no step of the chain may ignore without the grid showing it.
@@ -133,6 +133,32 @@ def odometry_flight(src: str | os.PathLike[str], out: str | os.PathLike[str], *,
         shutil.copyfile(labels, out_labels)
     return OdometryFlight(out, out_labels, clouds, poses, points_topic, out_pose_topic,
                           cloud_frame, tuple(float(v) for v in sensor_offset))
+
+
+def simulate_odometry_flight(config: Any, out: str | os.PathLike[str], *,
+                             sensor_offset: tuple[float, ...] = DEFAULT_OFFSET,
+                             cloud_frame: str = 'body', overwrite: bool = False,
+                             threads: int = 0) -> tuple[Any, OdometryFlight]:
+    """Simulate a flight (:func:`landing_zone.tools.sim.flight.simulate_flight` with
+    ``config``) and write it to ``out`` as :func:`odometry_flight` does, its ground truth
+    beside it (``SITE.labels.json``); the LiDAR-pose flight is made in a scratch directory.
+
+    Returns:
+        ``(FlightResult, OdometryFlight)``: the simulated flight's figures (its own bag was
+        scratch, gone) and what ``out`` holds.
+    """
+    import tempfile
+
+    from landing_zone.tools.sim.flight import simulate_flight
+
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise BagError(f'{out} exists (overwrite to replace it)')
+    with tempfile.TemporaryDirectory(prefix='lz_odometry_') as tmp:
+        flight = simulate_flight(config, Path(tmp) / 'site.mcap', threads=threads)
+        result = odometry_flight(flight.bag, out, sensor_offset=sensor_offset,
+                                 cloud_frame=cloud_frame, overwrite=overwrite)
+    return flight, result
 
 
 def _to_local(arr: Any, R: np.ndarray, t: np.ndarray) -> None:
