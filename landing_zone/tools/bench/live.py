@@ -18,6 +18,10 @@ best-effort publishers (what LiDAR drivers use) and once with reliable ones. Eac
 Then a smaller table compares the DDS settings the choice rests on: Fast DDS's built-in
 transports against the shared-memory profile, best effort and reliable, at 1 M returns/s.
 
+:func:`run` takes the rates, the publishers' reliabilities and node parameters to measure one
+setting alone (``run(rates=[parse_rate('1M')], reliabilities=('best_effort',),
+compare_dds=False, params={'eager_interval': 0.0})``).
+
 The machine is shared: the load average is printed before and after. The summary states what
 the issue's goals ask: >= 99 % integrated up to 300k returns/s with both reliabilities, no
 cloud unaccounted for, and the live capacity (the highest rate with >= 95 % integrated).
