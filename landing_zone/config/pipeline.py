@@ -107,9 +107,9 @@ class SiteConfig:
     footprint_radius: float = param(1.5, "Radius of the vehicle's circular footprint", 'm',
                                     (0.0, 50.0), open_lo=True)
     top_k: int = param(5, 'Landing-site candidates published, best first', '', (0, 100))
-    # 0.9, the level planners are told to act at: on 112 fresh flights it listed 44-47 % of
-    # the clear footprints and 3 of 5,779 over an obstacle, against 61 % and 8 at 0.8
-    # (README, "A site's P(safe)"); a planner that wants more sites lowers it knowingly
+    # 0.9, the level planners are told to act at (README, "A site's P(safe)"): fewer sites
+    # over an obstacle than at 0.8, for fewer clear ones; a planner that wants more sites
+    # lowers it knowingly
     min_p_safe: float = param(
         0.9, 'Candidates below this P(all tiles under the footprint safe) are left out', '',
         (0.0, 1.0))

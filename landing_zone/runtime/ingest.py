@@ -62,8 +62,8 @@ LIVE_CLOUD_REASONS = ('transport', 'missed_at_start', 'overload')
 # How long the threads sleep at most before looking at the clock again [s].
 _POLL = 0.05
 # An eager pass (before it is due) only while integration works less than this share of the
-# time: above it, on a busy 2-core machine, the passes took the CPU integration needed
-# (overload drops at 1 M returns/s) while below it they cut the latency by two thirds.
+# time: above it the passes take the CPU integration needs (on a busy 2-core machine, ungated
+# eager passes made the queue overflow at 1 M returns/s).
 EAGER_MAX_LOAD = 0.5
 
 
