@@ -164,3 +164,18 @@ def test_build_fills_rosbags_defaults():
     typestore().serialize_cdr(mk, 'visualization_msgs/msg/Marker')
     with pytest.raises(TypeError, match='no field'):
         g.build(t, 'std_msgs/msg/ColorRGBA', alpha=1.0)
+
+
+def test_landing_sites_cloud_has_every_site_in_the_poses_order_with_identical_bytes():
+    m, mb, c1, c2 = both(g.landing_sites_cloud)
+    assert c1 == c2
+    sites = cloud_to_structured(m)
+    assert sites.dtype.names == ('x', 'y', 'z', 'p_safe', 'slope_deg', 'step', 'clearance')
+    assert all(sites.dtype[n] == np.float32 for n in sites.dtype.names)
+    poses = g.landing_site_poses(hand_made(), STAMP).poses
+    assert [(p.position.x, p.position.y) for p in poses] == list(zip(sites['x'], sites['y']))
+    np.testing.assert_allclose(sites['p_safe'], [0.9, 0.7])
+    np.testing.assert_allclose(sites['slope_deg'], [10.0, np.nan], equal_nan=True)
+    assert np.isnan(sites['z'][1])  # no ground under the second: NaN, as the report's null
+    assert m.header.frame_id == 'map' and m.width == 2
+    assert 'landing_sites_cloud' in g.OUTPUT_TYPES

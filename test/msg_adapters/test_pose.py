@@ -152,3 +152,20 @@ def test_as_message_types():
         MessageTypes.rosbags().get('nope_msgs/msg/Nothing')
     with pytest.raises(LandingZoneError, match='cannot be imported'):
         MessageTypes.rclpy().get('nope_msgs/msg/Nothing')
+
+
+def test_odometry_round_trip_and_either_pose_input(types):
+    from msg_adapters.pose import make_odometry, read_pose_input
+
+    q = Rotation.from_euler('zyx', [0.3, -0.2, 0.1]).as_quat()
+    msg = make_odometry(1_700_000_001_000_000_042, 'odom', 'base_link', [1.5, -2.0, 30.25], q,
+                        types)
+    assert isinstance(msg, types.get('nav_msgs/msg/Odometry'))
+    frame, child, stamp, position, quaternion = read_pose_input(msg)
+    assert (frame, child, stamp) == ('odom', 'base_link', 1_700_000_001_000_000_042)
+    np.testing.assert_array_equal(position, [1.5, -2.0, 30.25])
+    np.testing.assert_allclose(quaternion, q, atol=1e-15)
+    ps = make_pose_stamped(5, 'map', [0, 0, 1], [0, 0, 0, 1], types)
+    assert read_pose_input(ps)[:3] == ('map', None, 5)
+    with pytest.raises(InvalidPoseError, match='not a nav_msgs/Odometry'):
+        read_pose_input(SimpleNamespace(child_frame_id='x', header=msg.header))
