@@ -213,7 +213,10 @@ class LivePipeline:
                 self.errors.append(err)
                 if self.on_error is not None:
                     self.on_error('bug', f'integration failed: {type(err).__name__}: {err}')
-            self._work.append((self.clock(), self.clock() - t_work))
+            now = self.clock()
+            self._work.append((now, now - t_work))
+            while self._work[0][0] < now - 1.0:
+                self._work.popleft()
             if stream.due() or self._eager():
                 self._assess_wake.set()
 
@@ -232,12 +235,10 @@ class LivePipeline:
         return self.clock() - self._last_pass >= max(gap, 2.0 * last)
 
     def integration_load(self) -> float:
-        """The share of the last second the integration thread spent working (0..1)."""
-        now = self.clock()
-        work = self._work
-        while work and work[0][0] < now - 1.0:
-            work.popleft()
-        return min(sum(w for _, w in work), 1.0)
+        """The share of the last second the integration thread spent working (0..1); any
+        thread (a copy is read: only the integration thread changes the record)."""
+        since = self.clock() - 1.0
+        return min(sum(w for t, w in tuple(self._work) if t >= since), 1.0)
 
     def _ingest_cloud(self, entry: _Entry) -> None:
         try:
