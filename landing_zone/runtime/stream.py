@@ -139,7 +139,8 @@ class Stream:
         self.assess_seconds_total = 0.0
         self._integrate_times: collections.deque[tuple[float, int]] = \
             collections.deque(maxlen=50)
-        self.on_drop: Callable[[str, str], None] | None = None  # (reason, message) hook
+        # (reason, message) hook; a pose's reason comes as pose_REASON
+        self.on_drop: Callable[[str, str], None] | None = None
         # called after each integration with (stamp_ns, xyz, origin): replay keeps a top view
         self.on_integrate: Callable[[int, np.ndarray, np.ndarray], None] | None = None
         self.assessed_stamp_ns: int | None = None  # newest cloud stamp in the last pass
@@ -196,8 +197,8 @@ class Stream:
 
     def _drop_pose(self, reason: str, message: str) -> None:
         self.dropped_poses[reason] += 1
-        if self.on_drop is not None:
-            self.on_drop(reason, message)
+        if self.on_drop is not None:  # a kind of its own: a pose's drop hides no cloud's
+            self.on_drop(f'pose_{reason}', message)
 
     # -- clouds -----------------------------------------------------------------------------
 

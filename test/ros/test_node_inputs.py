@@ -252,10 +252,15 @@ def test_bad_pose_input_is_counted_and_stale_input_goes_warn_then_error_then_ok(
     finally:
         log = stop(node)
     assert node.returncode == 0, log
-    # throttled: one warning per kind
-    assert log.count("odometry dropped: frame_id 'odom', expected 'map'") == 1, log
-    assert log.count('odometry dropped: child_frame_id is empty; sensor_offset and '
-                     "cloud_frame 'body' need the frame it is the pose of") == 1, log
+    # throttled: one warning per kind, the pose's and the cloud's
+    assert log.count("[assessor.pose_wrong_frame]: odometry dropped: frame_id 'odom', "
+                     "expected 'map'") == 1, log
+    assert log.count('[assessor.wrong_frame]: cloud dropped: its pose was refused: odometry '
+                     "dropped: frame_id 'odom'") == 1, log
+    assert log.count('[assessor.pose_no_child_frame]: odometry dropped: child_frame_id is empty;'
+                     " sensor_offset and cloud_frame 'body' need the frame it is the pose of"
+                     ) == 1, log
+    assert log.count('[assessor.no_child_frame]: cloud dropped: its pose was refused') == 1, log
 
 
 def test_a_misspelt_parameter_stops_the_node_with_the_closest_name(tmp_path, model_file):
