@@ -213,7 +213,10 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     res = replay(flight.bag, out / 'assessed.mcap', out / 'report.json', model=model_path,
                  center=(cx, cy))
     a = res.assessment
-    render_png(a, res.top_view, out / 'map.png', labels=labels)
+    render_png(a, res.top_view, out / 'map.png', labels=labels,
+               title=f'Demo site, map fixed on it (centre ({_number(cx)}, {_number(cy)})): '
+                     f'{int(a.known.sum())} of {len(a)} tiles judged, {len(a.sites)} landing '
+                     'site(s)')
     seconds['replay'] = time.perf_counter() - t0
     scores = score_tiles(a.centers, a.p_safe, a.tile_size, labels)
     auc, fraction, n = scores.auc, scores.judged_fraction, scores.judged
