@@ -223,10 +223,10 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     command = replay_command(flight.bag, (cx, cy), out, model=model, labels=flight.labels)
 
     nx, ny = a.shape
-    console.print(f'\nP(safe) per {a.tile_size:g} m tile over a fixed region of '
-                  f'{nx * a.tile_size:g} x {ny * a.tile_size:g} m centred on the site at '
-                  f'({_number(cx)}, {_number(cy)}) ({a.frame_id} frame), '
-                  f'model {model_path.name}:')
+    console.print(f'\nP(safe) per {a.tile_size:g} m tile ({a.frame_id} frame), model '
+                  f'{model_path.name},\nover a region fixed on the site: '
+                  f'{nx * a.tile_size:g} x {ny * a.tile_size:g} m centred at '
+                  f'({_number(cx)}, {_number(cy)}) (why: see the end)')
     console.print(tile_map(a, labels), soft_wrap=True)  # wide maps stay maps when piped
     console.print(f'replayed at {res.realtime_factor:.1f}x real time '
                   f'({res.timings["loop"]:.1f} s for {res.bag_seconds:.1f} s of flight, '

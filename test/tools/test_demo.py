@@ -112,7 +112,7 @@ def test_the_printed_replay_command_gives_the_demos_tiles(tmp_path):
     assert res.command == replay_command(out / 'site.mcap', res.center, out, model=model,
                                          labels=out / 'site.labels.json')
     assert res.command in text.splitlines()[-1]  # printed whole on one line
-    assert 'fixed region of 20 x 20 m centred on the site at (0, 0)' in ' '.join(text.split())
+    assert 'fixed on the site: 20 x 20 m centred at (0, 0)' in ' '.join(text.split())
     assert 'follow the sensor by default' in ' '.join(text.split())
     argv = shlex.split(res.command)
     assert argv[:2] == ['landing-zone', 'replay']
