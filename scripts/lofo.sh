@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Leave one family out: one model per held-out train family of obstacles and per vegetation
-# family, the final model on everything, then the LOFO table (models/MODEL_CARD.md, "Planned"):
+# family, the final model on everything, then the LOFO table (experiments/2026-12-03_one_family_at_a_time):
 # WORKDIR/lofo.{md,json}, and the per-scene scores in WORKDIR/lofo_scores.json (what
 # scripts/pass_breakdown.py reads).
 # Resumable at any point: a finished model is skipped, an interrupted one resumes from its
