@@ -83,7 +83,8 @@ def test_links_resolve(doc):
 @pytest.mark.parametrize('doc', CURRENT, ids=rel)
 def test_backticked_paths_exist(doc):
     names = re.findall(r'`([^`\s]+)`', without_code_blocks(read(doc)))
-    paths = {n.rstrip('.,;:') for n in names if re.fullmatch(rf'(?:{"|".join(ROOTS)})/[\w./-]*', n)}
+    path = re.compile(rf'(?:{"|".join(ROOTS)})/[\w./-]*')
+    paths = {n.rstrip('.,;:') for n in names if path.fullmatch(n)}
     missing = sorted(p for p in paths if not (ROOT / p).exists())
     assert not missing, f'{rel(doc)} names paths that do not exist: {missing}'
 
