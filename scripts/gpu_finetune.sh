@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# The shipped model's fine-tune recipe with edge scenes (docs/EXPERIMENTS.md, "obstacles at the
-# tile's edge") on a lent GPU machine (16 cores + one NVIDIA GPU, Python 3.12 with torch, numba,
+# The shipped model's fine-tune recipe with edge scenes (experiments/
+# 2026-12-03_obstacles_at_the_edge) on a lent GPU machine (16 cores + one NVIDIA GPU, Python 3.12 with torch, numba,
 # numpy, scipy, scikit-learn, typer; no internet): its training data made on all cores, then one
 # fine-tune per RUN on the GPU. Each RUN is NAME:SEED[:FAMILIES]; FAMILIES (comma separated)
 # adds a set of 1,200 synth3 scenes of those obstacle families to that run's training data.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Does a vegetation prior help a held-out vegetation family? (docs/EXPERIMENTS.md, "The meadow
-# prior"): the shipped architecture trained from scratch without one vegetation family, with
+# Does a vegetation prior help a held-out vegetation family? (experiments/
+# 2026-12-04_meadow_prior): the shipped architecture trained from scratch without one vegetation family, with
 # 1,200 scenes of synth3's own vegetation (arm A) or of the meadow prior (arm B) beside synth3_b,
 # on a lent GPU machine (16 cores + one NVIDIA GPU, Python 3.12 with torch, numba, numpy, scipy,
 # scikit-learn, typer; no internet; trimesh and embreex as wheels in .whl/, fetched as

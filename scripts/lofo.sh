@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Leave one family out: one model per held-out train family of obstacles and per vegetation
-# family, the final model on everything, then the LOFO table (models/MODEL_CARD.md, "Planned"):
+# family, the final model on everything, then the LOFO table (experiments/2026-12-03_one_family_at_a_time):
 # WORKDIR/lofo.{md,json}, and the per-scene scores in WORKDIR/lofo_scores.json (what
 # scripts/pass_breakdown.py reads).
 # Resumable at any point: a finished model is skipped, an interrupted one resumes from its
@@ -26,7 +26,7 @@
 # K - 1 of them) beside its leave-groups-out stand-ins: for group g, the fold model g and the
 # pair models without g, K members none of which saw g. The ensemble is calibrated on those
 # (`landing-zone calibrate`), which carry that calibration to be judged
-# (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").
+# (experiments/2026-12-02_subset_ensemble_and_cosine).
 # FOLDS=each leaves out one family at a time along the same path (one model per train family of
 # obstacles and per vegetation family, 19 on synth3, trained one after the other, named
 # lofo_AXIS_FAMILY): the yardstick of issue 15 for a recipe FOLDS=0 cannot train (TUNE_DATA).
