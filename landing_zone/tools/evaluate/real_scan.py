@@ -13,7 +13,8 @@ What is done:
 1. **Level.** A plane is fitted to the returns of ground classes (:data:`GROUND`) 2-15 m from
    the sensor; the scan is rotated so that plane is level and shifted so it lies at z = 0. The
    sensor then stands at its mounting height above the ground (``sensor_height``), as a
-   registered cloud and its pose would place it.
+   registered cloud and its pose would place it. The height is the returns', not a
+   parameter: RELLIS-3D's calibration gives the LiDAR's pose to the camera, not to the ground.
 2. **Assess.** The returns go through :class:`landing_zone.Assessor` as one cloud from the
    sensor's origin, its map fixed on the ground ``ahead`` metres in front of the sensor
    (``forward_deg``: the heading of "forward" in the scan's frame; 180 for the RELLIS-3D
@@ -255,8 +256,7 @@ def _alternatives(judged: np.ndarray, observed_fraction: np.ndarray, n_returns: 
 
 def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[str], *,
                 model: str | os.PathLike[str] | None = None, forward_deg: float = 180.0,
-                ahead: float = 10.0, sensor_height: float | None = None,
-                angles: Sequence[float] = DEPRESSIONS) -> dict[str, Any]:
+                ahead: float = 10.0, angles: Sequence[float] = DEPRESSIONS) -> dict[str, Any]:
     """Level, assess and score one labelled frame (module docstring).
 
     Args:
@@ -264,7 +264,6 @@ def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[
         model: model file; default the shipped one (with its OOD reference).
         forward_deg: heading of the vehicle's forward direction in the scan's frame [deg].
         ahead: distance from the sensor to the map's centre along it [m].
-        sensor_height: the sensor's height above the ground [m]; None: the levelled plane's.
         angles: depression angles [deg] at which the view rule is measured.
 
     Returns:
@@ -280,10 +279,9 @@ def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[
     xyz, classes = read_scan(bin_path, label_path)
     if classes is None:
         raise ConfigError('assess_scan needs the label file')
+    # the sensor's height above the ground is what its returns say: moving it would bend
+    # every ray
     pts, origin, info = level_scan(xyz, classes)
-    if sensor_height is not None:
-        pts[:, 2] += float(sensor_height) - origin[2]
-        origin = np.array([0.0, 0.0, float(sensor_height)])
     h = math.radians(forward_deg)
     center = (ahead * math.cos(h), ahead * math.sin(h))
     cfg = AssessorConfig()
@@ -453,14 +451,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="heading of the vehicle's forward in the scan's frame [deg]")
     ap.add_argument('--ahead', type=float, default=10.0,
                     help="the map's centre, this far ahead of the sensor [m]")
-    ap.add_argument('--sensor-height', type=float, default=None,
-                    help='height of the sensor above the ground [m]; default the fitted')
     ap.add_argument('--flight', type=Path, action='append', default=[],
                     help='also measure the view rule on this flight bag (labels beside it)')
     ap.add_argument('--json', type=Path, default=None, help='write the figures here')
     args = ap.parse_args(argv)
     doc = assess_scan(args.bin, args.label, model=args.model, forward_deg=args.forward_deg,
-                      ahead=args.ahead, sensor_height=args.sensor_height)
+                      ahead=args.ahead)
     print(markdown_scan(doc), end='')
     flights = [flight_view(b, model=args.model) for b in args.flight]
     for f in flights:
