@@ -6,7 +6,8 @@ semantic class in its lower 16 bits). The classes are RELLIS-3D's ontology (:dat
 Jiang et al., "RELLIS-3D Dataset: Data, Benchmarks and Analysis", 2020), whose example frame
 (``utils/example/000104.bin`` in github.com/unmannedlab/RELLIS-3D, an Ouster OS1-64 on a
 Clearpath Warthog, a ground vehicle) is what this was written for. Its data are licensed CC
-BY-NC-SA 3.0: none of it is in this repository; a user fetches it (the experiment's README).
+BY-NC-SA 3.0: none of it is in this repository; a user fetches it
+(experiments/2026-12-06_real-scan says how, and what it measured).
 
 What is done:
 
