@@ -133,3 +133,40 @@ def test_replay_writes_only_what_it_is_asked_for(tmp_path, model_file):
     assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
     assert sorted(p.name for p in tmp_path.iterdir()) == ['flight.mcap', 'map.png']
     assert out.stdout.strip().splitlines()[-1] == f'wrote {png}'
+
+
+def test_replay_runs_without_the_extras(tmp_path, model_file):
+    """`landing-zone replay` on the robot's install: the extras' libraries made unimportable."""
+    from test_replay import write_flight
+
+    bag = tmp_path / 'flight.mcap'
+    write_flight(bag)
+    code = ('import sys\n'
+            'EXTRAS = {"matplotlib", "sklearn", "trimesh", "embreex", "optuna", "ray", "laspy",\n'
+            '          "pyproj", "octomap", "mpl_toolkits"}\n'
+            'class Block:\n'
+            '    def find_spec(self, name, path=None, target=None):\n'
+            '        if name.split(".")[0] in EXTRAS:\n'
+            '            raise ModuleNotFoundError(f"No module named {name!r}", name=name)\n'
+            'sys.meta_path.insert(0, Block())\n'
+            'from landing_zone.tools.cli import main\n'
+            'main(sys.argv[1:])\n')
+    report = tmp_path / 'r.json'
+    out = subprocess.run([sys.executable, '-c', code, 'replay', str(bag), '--report', str(report),
+                          '--model', str(model_file)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert report.is_file() and out.stdout.strip().splitlines()[-1] == f'wrote {report}'
+    out = subprocess.run([sys.executable, '-c', code, 'replay', str(bag), '--png',
+                          str(tmp_path / 'm.png'), '--model', str(model_file)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stderr.strip().splitlines() == [
+        "landing-zone: error: --png draws with matplotlib: pip install matplotlib (or "
+        "'landing_zone[sim]')"]
+
+
+def test_each_stage_module_is_short():
+    from pathlib import Path
+
+    import landing_zone.tools.cli as cli
+    for path in Path(cli.__file__).parent.glob('*.py'):
+        assert len(path.read_text().splitlines()) <= 300, path.name

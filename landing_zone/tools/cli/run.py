@@ -5,14 +5,12 @@ from __future__ import annotations
 import time
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Optional
+from collections.abc import Callable
+from typing import Annotated, Optional
 
 import typer
 
 from landing_zone.tools.cli.options import POINTS_HELP, POSE_HELP
-
-if TYPE_CHECKING:
-    from landing_zone.replay import ReplayResult
 
 app = typer.Typer()
 
@@ -97,6 +95,7 @@ def replay(
     from landing_zone.judging.ood import REASON_OOD
     from landing_zone.replay import replay as run_replay
 
+    render_png = _png_renderer() if png is not None else None
     config = stream_config = None
     if params is not None:
         config, stream_config, _ = configs_from_flat(read_params_file(params))
@@ -104,8 +103,8 @@ def replay(
                         model=model, center=center, config=config,
                         stream_config=stream_config, trajectory=trajectory,
                         log=lambda line: print(f'note: {line}'))
-    if png is not None:
-        _write_png(result, png, labels)
+    if render_png is not None:
+        render_png(result.assessment, result.top_view, png, labels=labels)
     st = result.stats
     a = result.assessment
     judged = int(a.known.sum())
@@ -137,18 +136,17 @@ def replay(
           'or --png)')
 
 
-def _write_png(result: ReplayResult, png: Path, labels: Path | None) -> None:
-    """The final map as a PNG; matplotlib is not in the robot's install."""
+def _png_renderer() -> Callable[..., None]:
+    """The PNG renderer, refused before any work where matplotlib (not the robot's) is absent."""
     from landing_zone.errors import ConfigError
 
     try:
-        from landing_zone.tools.map_png import render_png
-    except ModuleNotFoundError as err:
-        if err.name is None or err.name.split('.')[0] != 'matplotlib':
-            raise
+        import matplotlib  # noqa: F401
+    except ModuleNotFoundError:
         raise ConfigError('--png draws with matplotlib: pip install matplotlib (or '
                           '\'landing_zone[sim]\')') from None
-    render_png(result.assessment, result.top_view, png, labels=labels)
+    from landing_zone.tools.map_png import render_png
+    return render_png
 
 
 @app.command(help='Publish a bag\'s messages over ROS 2 at the recorded rate (there is no '
