@@ -165,7 +165,7 @@ class TileConfig:
     # The shipped model was trained on cubes cut level (of level and sloped synth3 ground), yet
     # judges a 10-degree site as it judges the same site flat only with the cubes aligned (per-
     # tile AUC 0.999 tilted and flat, no obstacle tile passed; cut level 0.975 and 4 of 30:
-    # scripts/slope_auc.py, model card). Training, evaluate, calibrate and fit-ood cut their
+    # experiments/2026-12-01_sloped_ground). Training, evaluate, calibrate and fit-ood cut their
     # cubes as this says too (judging.patches.scene_to_input), so models are trained and judged
     # on the cubes the assessor cuts.
     align_to_ground: bool = param(
@@ -245,7 +245,7 @@ class GuardConfig:
     # One voxel: a solid voxel touching the tile's edge may hold an obstacle reaching into the
     # tile by less than a voxel, which the map cannot resolve (on 112 fresh flights it caught
     # 12 of the 81 obstacle tiles passed at 0.5 and flagged 4 of 14,281 safe tiles; two
-    # voxels 18 and 63: docs/EXPERIMENTS.md, "The guard's reach")
+    # voxels 18 and 63: experiments/2026-12-04_guard_reach)
     reach: float = param(0.05, 'A cluster counts for a tile when it comes this close to the '
                          "tile's edge (at most margin)", 'm', (0.0, 2.0))
     max_p_safe: float = param(0.05, 'P(safe) of a tile where the guard fires is at most this',

@@ -25,7 +25,7 @@ Files beside ``--out`` (for ``model.safetensors``):
   after every epoch and every ``checkpoint_minutes``; ``--resume`` continues from it.
 - ``model.log.csv``: one row per epoch: train loss, validation loss and AUC, time.
 
-Fine-tuning (``init``, e.g. to a site: README, "Site adaptation") is conservative by default:
+Fine-tuning (``init``, e.g. to a site: docs/SITE_ADAPTATION.md) is conservative by default:
 the loss penalises every obstacle sample the net judges safer than the initial net does
 (:mod:`landing_zone.tools.learn.leniency`), and the model keeps the initial model's calibration
 (fitted on families it never saw), its offset lowered where the validation obstacles need it
