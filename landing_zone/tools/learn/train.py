@@ -71,65 +71,45 @@ __all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
 class TrainConfig:
     """How to train; stored in the checkpoint."""
 
-    arch: str = field(default=DEFAULT_SPEC, metadata={
-        'help': 'Network spec (landing_zone.judging.spec): layers like C7-F32-P2-C5-F64-P2-D512.'})
+    arch: str = field(default=DEFAULT_SPEC, metadata={'help': 'Network spec (judging.spec).'})
     epochs: int = field(default=6, metadata={'help': 'Passes over the augmented training set.'})
     lr: float = field(default=0.01, metadata={'help': 'SGD learning rate.'})
-    # 'cosine': lr * (1 + cos(pi * t)) / 2 over the run's batches, t from 0 to 1 (a function of
-    # the batch count, so a resumed run continues it exactly)
     lr_schedule: str = field(default='constant', metadata={
-        'help': "constant (the paper's) or cosine (the rate falls to 0 over the run).",
-        'choices': ('constant', 'cosine')})
+        'choices': ('constant', 'cosine'),
+        'help': "constant (the paper's) or cosine (the rate falls to 0 over the run)."})
     momentum: float = field(default=0.9, metadata={'help': 'SGD momentum.'})
     weight_decay: float = field(default=5e-4, metadata={'help': 'L2 penalty.'})
     batch_size: int = field(default=20, metadata={'help': 'Samples per minibatch.'})
     augment_copies: int = field(default=20, metadata={
         'help': 'Augmented samples of every scene per epoch.'})
     max_samples: int = field(default=0, metadata={'help': 'Cap on samples per epoch (0: none).'})
-    # (applied after hold_out; a synth3 scene takes about 0.3 MB)
     max_scenes: int = field(default=0, metadata={
-        'help': 'Train on an even subset of this many scenes (whole twin pairs; 0: all): '
-                'bounds the memory, about 16 bytes per return.'})
+        'help': 'An even subset of this many scenes, whole twin pairs (0: all): bounds memory.'})
     val_fraction: float = field(default=0.1, metadata={
-        'help': 'Share of training scenes held out (per class) for validation and '
-                'calibration.'})
+        'help': 'Share of training scenes held out for validation and calibration.'})
     workers: int = field(default=0, metadata={'help': 'Data loader processes (0: in-process).'})
-    seed: int = field(default=0, metadata={
-        'help': 'Seed of initialisation, split and augmentation.'})
-    device: str = field(default='cpu', metadata={
-        'help': 'Where to train.', 'choices': ('cpu', 'cuda')})
+    seed: int = field(default=0, metadata={'help': 'Seed of init, split and augmentation.'})
+    device: str = field(default='cpu', metadata={'choices': ('cpu', 'cuda'),
+                                                 'help': 'Where to train.'})
     dropout: float = field(default=0.5, metadata={'help': 'Dropout after each layer.'})
-    z_shift: float = field(default=0.3, metadata={
-        'help': 'Augmentation: vertical shift uniform in [-z_shift, z_shift] [m].'})
-    yaw: bool = field(default=True, metadata={'help': 'Augmentation: yaw uniform in [0, 2 pi).'})
-    # (one side, or two: a corner)
+    z_shift: float = 0.3  # augmentation: vertical shift uniform in [-z_shift, z_shift] [m]
+    yaw: bool = True  # augmentation: yaw uniform in [0, 2 pi)
     edge_drop: float = field(default=0.3, metadata={
-        'help': 'Share of samples whose context is cut off beyond a random line in the '
-                'padding, as at the edge of a scanned area.'})
+        'help': 'Share of samples cut off beyond a random line, as at the edge of a scan.'})
     checkpoint_minutes: float = field(default=10.0, metadata={
         'help': 'Also save the training state this often within an epoch.'})
     cache_voxels: int = field(default=0, metadata={
         'help': 'Pre-voxelize this many augmented copies per scene once (0: on the fly).'})
-    # 'auto': bf16 autocast on CUDA for batches of 64 or more, else fp32
-    precision: str = field(default='auto', metadata={
-        'help': 'auto (bf16 on CUDA, fp32 on CPU), fp32 or bf16.'})
+    precision: str = field(default='auto', metadata={'help': 'auto (bf16 on CUDA), fp32 or bf16.'})
     hold_out: list[str] = field(default_factory=list, metadata={
         'help': 'Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
-                'terrain:sloped, sensor:rosette; synth3 data; landing_zone.tools.evaluate.lofo); '
-                'repeat for more.'})
-    # (landing_zone.tools.learn.leniency)
-    leniency_penalty: float = field(default=1.0, metadata={
-        'help': 'With --init: weight of a penalty on every obstacle sample the net judges safer '
-                'than the --init model does (the squared excess of its logit), so that adapting '
-                'to a site does not make it more lenient on obstacles; 0: none.'})
-    # (landing_zone.tools.learn.guarded_calibration for 'guarded')
-    calibration: str = field(default='auto', metadata={
-        'help': 'refit: the temperature fitted on the validation scenes (of the training '
-                'families only); guarded: the --init model\'s T and b (fitted out of family by '
-                'landing-zone calibrate), b lowered until, on the validation obstacles of each '
-                '--data, no more pass at P(safe) >= 0.5 or 0.9 than under the --init model; '
-                'auto: guarded with --init, else refit.',
-        'choices': ('auto', 'refit', 'guarded')})
+                'terrain:sloped, sensor:rosette; synth3 data); repeat for more.'})
+    leniency_penalty: float = field(default=1.0, metadata={  # tools.learn.leniency
+        'help': 'With --init: penalty on obstacles judged safer than by --init (0: none).'})
+    calibration: str = field(default='auto', metadata={  # tools.learn.guarded_calibration
+        'choices': ('auto', 'refit', 'guarded'),
+        'help': "refit: T fitted on the validation scenes; guarded: the --init model's T and b, "
+                'b lowered until no more validation obstacles pass; auto: guarded with --init.'})
 
     def validate(self) -> None:
         SafetyNetConfig(self.arch, dropout=self.dropout).validate()
