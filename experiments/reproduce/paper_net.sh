@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
-# Generate a synth2 dataset and train safety CNNs on a lent GPU machine (16 cores + one NVIDIA
-# GPU, Python 3.12 with torch/numba/numpy/scipy/sklearn, no internet). trimesh and embreex
-# travel as wheels in .whl/ (fetched as scripts/gpu_finetune.sh says). What must come back goes
-# to $OUT; evaluation runs afterwards on the CPU (landing-zone evaluate), so the device time goes
-# to training.
-#   usage: scripts/gpu_train.sh SCENES CACHE_COPIES EPOCHS AUG_COPIES ARCH [ARCH ...]
+# The paper's net (models/paper_C7-F32-P2-C5-F64-P2-D512.safetensors), with the command line
+# only: a synth2 dataset and one safety CNN per ARCH, trained on a GPU machine (16 cores + one
+# NVIDIA GPU, Python 3.12 with torch/numba/numpy/scipy/sklearn, no internet). What must come
+# back goes to $OUT; evaluation runs afterwards on the CPU (landing-zone evaluate), so the device
+# time goes to training. trimesh and embreex travel as wheels in .whl/ (ignored by git), fetched
+# once where there is internet with
+#   python3 -m pip download --no-deps --only-binary=:all: --python-version 3.12 \
+#       --implementation cp --platform manylinux_2_28_x86_64 --platform manylinux_2_17_x86_64 \
+#       -d .whl trimesh==5.2.0 embreex==4.4.0.post1
+#   usage: experiments/reproduce/paper_net.sh SCENES CACHE_COPIES EPOCHS AUG_COPIES ARCH [ARCH ...]
+#   the paper's net: experiments/reproduce/paper_net.sh 5000 5 6 10 C7-F32-P2-C5-F64-P2-D512
 set -euo pipefail
 scenes=$1; copies=$2; epochs=$3; aug=$4; shift 4
 out=${OUT:-/tmp/out}; mkdir -p "$out"
