@@ -69,9 +69,12 @@ def evaluate(
 
 @app.command(name='evaluate-flights',
              help='Replay recorded flights, each with its ground truth beside it '
-                  '(SITE.labels.json for SITE.mcap, as simulate-flight writes it), and score '
-                  'the final tiles per flight and pooled: AUC, ECE, the share of obstacle '
-                  'tiles given P(safe) >= 0.5 and the share of labelled tiles unjudged. The '
+                  '(SITE.labels.json for SITE.mcap, as simulate-flight writes it), with the map '
+                  'fixed on the labelled site, and score it per flight and pooled. Tiles: AUC, '
+                  'ECE, obstacle tiles at P(safe) >= 0.5 and >= 0.9, safe tiles at >= 0.9, the '
+                  'share unjudged. Footprints: clear footprints accepted at the site limits, '
+                  'footprints over an obstacle accepted, and the clear footprints accepted at '
+                  '0, 1 and 5 footprints over an obstacle along the least tile P(safe). The '
                   'flights run in parallel, here or on a Ray cluster, with the same '
                   'figures.\n\n'
                   'Examples:\n\n  landing-zone evaluate-flights a.mcap b.mcap --json '
@@ -93,13 +96,17 @@ def evaluate_flights(
     ] = None,
     points_topic: Annotated[str, typer.Option(help=POINTS_HELP)] = '/lidar/points',
     pose_topic: Annotated[str, typer.Option(help=POSE_HELP)] = '/lidar/pose',
+    center: Annotated[Optional[tuple[float, float]], typer.Option(
+        metavar='X Y', help="Centre of every flight's region of interest; default: the "
+                            "centre of its labels' extent (the labelled site is scored).")
+    ] = None,
 ) -> None:
     from landing_zone.tools.evaluate.flights import evaluate_flights as run_flights
     from landing_zone.tools.evaluate.flights import markdown_flights
 
     doc = run_flights(bags, engine=engine.value, address=address, workers=workers,
                       model=model, points_topic=points_topic, pose_topic=pose_topic,
-                      json_path=json_path)
+                      json_path=json_path, center=center)
     print(markdown_flights(doc), end='')
     print(f'{len(doc["flights"])} flight(s) in {doc["seconds"]:.1f} s on {doc["engine"]} '
           f'({doc["workers"]} worker(s)): {doc["flights_per_s"]} flights/s'
