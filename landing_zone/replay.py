@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from landing_zone.config import AssessorConfig, StreamConfig
     from landing_zone.runtime.stream import Stream
 
-__all__ = ['ReplayResult', 'replay', 'output_topics', 'render_png', 'NODE_NAME', 'require_inputs',
+__all__ = ['ReplayResult', 'replay', 'output_topics', 'NODE_NAME', 'require_inputs',
            'POSE_TYPES']
 
 NODE_NAME = 'assessor'
@@ -288,6 +288,8 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
             doc['survey'] = res.survey
         _write_json(Path(report), doc)
     if png is not None:
+        from landing_zone.tools.map_png import render_png
+
         render_png(result, top, png, labels=labels)
     res.timings['report'] = time.perf_counter() - t_report
     res.seconds = time.perf_counter() - t_start
@@ -387,114 +389,3 @@ def _write_json(path: Path, doc: dict[str, Any]) -> None:
         os.replace(tmp, path)
     except OSError as err:
         raise BagError(f'cannot write report {path}: {err.strerror}') from err
-
-
-def render_png(assessment: Assessment, top_view: np.ndarray, path: str | os.PathLike[str],
-               labels: str | os.PathLike[str] | None = None, title: str | None = None) -> None:
-    """The safety map over a grey top view of the returns, with the landing sites.
-
-    Tiles are coloured by P(safe) (red 0 -> green 1), unknown tiles are left clear with a grey
-    hatch; the landing sites are drawn as footprint circles numbered best first; with
-    ``labels`` (SITE.labels.json) the true obstacles' footprints are outlined in black.
-    """
-    import matplotlib
-    matplotlib.use('Agg')
-    from matplotlib import pyplot as plt
-    from matplotlib.patches import Circle, Polygon, Rectangle
-
-    ts = assessment.tile_size
-    x0, y0 = assessment.origin[0] * ts, assessment.origin[1] * ts
-    nx, ny = assessment.shape
-    extent = (x0, x0 + nx * ts, y0, y0 + ny * ts)
-    fig, ax = plt.subplots(figsize=(7.5, 7.0), dpi=110)
-    heights = _height_image(np.asarray(top_view, np.float64), extent, cell=0.1)
-    if heights is not None:
-        lo, hi = np.nanpercentile(heights, [2, 98]) if np.isfinite(heights).any() else (0, 1)
-        ax.imshow(np.ma.masked_invalid(heights).T, origin='lower', extent=extent,
-                  cmap='Greys_r', vmin=lo, vmax=max(hi, lo + 1e-3), interpolation='nearest')
-    p = assessment.grid(assessment.p_safe)
-    img = ax.imshow(np.ma.masked_invalid(p).T, origin='lower', extent=extent, cmap='RdYlGn',
-                    vmin=0.0, vmax=1.0, alpha=0.5, interpolation='nearest')
-    unknown = ~np.isfinite(p)
-    for i, j in zip(*np.nonzero(unknown)):
-        ax.add_patch(Rectangle((x0 + i * ts, y0 + j * ts), ts, ts, fill=False, hatch='///',
-                               edgecolor='0.6', linewidth=0))
-    handles = _draw_reasons(ax, assessment)
-    if labels is not None:
-        from landing_zone.io.labels import obstacle_footprints, read_labels
-
-        for ob in obstacle_footprints(read_labels(labels)):
-            ax.add_patch(Polygon(ob, closed=True, fill=False, edgecolor='black', linewidth=1.2))
-    for rank, site in enumerate(assessment.sites, start=1):
-        ax.add_patch(Circle((site.x, site.y), assessment.footprint_radius, fill=False,
-                            edgecolor='tab:blue',
-                            linewidth=2.0 if rank == 1 else 1.0))
-        ax.annotate(str(rank), (site.x, site.y), color='tab:blue', ha='center', va='center',
-                    fontsize=9, weight='bold')
-    if handles:
-        ax.legend(handles=handles, loc='upper left', fontsize=7, framealpha=0.8,
-                  title='footprint centred here rejected for', title_fontsize=7)
-    ax.set_xlim(extent[0], extent[1])
-    ax.set_ylim(extent[2], extent[3])
-    ax.set_aspect('equal')
-    ax.set_xlabel(f'x [m] ({assessment.frame_id})')
-    ax.set_ylabel('y [m]')
-    judged = int(np.isfinite(assessment.p_safe).sum())
-    ax.set_title(title or f'P(safe) per {ts:g} m tile: {judged} of {len(assessment)} judged; '
-                          'hatched: unknown')
-    fig.colorbar(img, ax=ax, label='P(safe)', shrink=0.8)
-    fig.tight_layout()
-    try:
-        fig.savefig(path)
-    except OSError as err:
-        raise BagError(f'cannot write {path}: {err.strerror}') from err
-    finally:
-        plt.close(fig)
-
-
-# How the PNG marks a candidate left out for a limit: hatch and colour per reason.
-_REASON_HATCH = {'slope': ('\\\\', 'darkorange'), 'step': ('xx', 'purple'),
-                 'clearance': ('..', 'deepskyblue')}
-
-
-def _draw_reasons(ax: Any, assessment: Assessment) -> list[Any]:
-    """Hatch the tiles whose centred footprint is left out for slope, step or clearance;
-    return the legend's handles (one per reason drawn)."""
-    from matplotlib.patches import Patch, Rectangle
-
-    from landing_zone.judging.sites import REASONS
-
-    cand = assessment.candidates
-    if cand is None:
-        return []
-    ts = assessment.tile_size
-    handles = []
-    for why, (hatch, color) in _REASON_HATCH.items():
-        bit = 1 << REASONS.index(why)
-        cells = np.argwhere(cand.reasons & bit)
-        for i, j in cells:
-            x, y = cand.center(int(i), int(j))
-            ax.add_patch(Rectangle((x - ts / 2, y - ts / 2), ts, ts, fill=False, hatch=hatch,
-                                   edgecolor=color, linewidth=0))
-        if len(cells):
-            handles.append(Patch(facecolor='none', edgecolor=color, hatch=hatch,
-                                 label=f'{why} ({len(cells)})'))
-    return handles
-
-
-def _height_image(points: np.ndarray, extent: tuple[float, float, float, float],
-                  cell: float) -> np.ndarray | None:
-    """Highest return per ``cell``-sized pixel of the extent (NaN where none), x-major."""
-    if len(points) == 0:
-        return None
-    nx = max(1, int(round((extent[1] - extent[0]) / cell)))
-    ny = max(1, int(round((extent[3] - extent[2]) / cell)))
-    i = np.floor((points[:, 0] - extent[0]) / cell).astype(np.int64)
-    j = np.floor((points[:, 1] - extent[2]) / cell).astype(np.int64)
-    ok = (i >= 0) & (i < nx) & (j >= 0) & (j < ny) & np.isfinite(points[:, 2])
-    if not ok.any():
-        return None
-    img = np.full(nx * ny, -np.inf)
-    np.maximum.at(img, i[ok] * ny + j[ok], points[ok, 2])
-    img[np.isinf(img)] = np.nan
-    return img.reshape(nx, ny)

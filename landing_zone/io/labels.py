@@ -22,8 +22,9 @@ import numpy as np
 
 from landing_zone.errors import ConfigError
 
-__all__ = ['labels_path_for', 'read_labels', 'write_labels', 'tile_truth',
-           'obstacle_footprints', 'LabelScores', 'score_tiles', 'score_report']
+__all__ = ['labels_path_for', 'read_labels', 'write_labels', 'tile_truth', 'labels_extent',
+           'labels_center', 'obstacle_footprints', 'LabelScores', 'score_tiles',
+           'score_report']
 
 
 def labels_path_for(bag: str | os.PathLike[str]) -> Path:
@@ -84,6 +85,32 @@ def tile_truth(centers: np.ndarray, tile_size: float, labels: dict[str, Any]) ->
         _tile_keys(np.array([[t['x'], t['y']] for t in labels.get('tiles', [])]).reshape(-1, 2),
                    tile_size), labels.get('tiles', []))}
     return np.array([truth.get(k, -1) for k in _tile_keys(centers, tile_size)], np.int8)
+
+
+def labels_extent(labels: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """The (2,) lower and upper corners [m] of the squares of the labelled tiles.
+
+    Raises:
+        ConfigError: the document labels no tile.
+    """
+    tiles = labels.get('tiles', [])
+    if not tiles:
+        raise ConfigError('the labels hold no tile: no extent to centre on')
+    ts = float(labels.get('tile_size', 1.0))
+    k = np.array(_tile_keys(np.array([[t['x'], t['y']] for t in tiles]), ts), np.float64)
+    return k.min(axis=0) * ts, (k.max(axis=0) + 1) * ts
+
+
+def labels_center(labels: dict[str, Any]) -> tuple[float, float]:
+    """The centre (x, y) [m] of the labelled tiles' extent (:func:`labels_extent`): where a
+    map fixed on the labelled site is centred.
+
+    Raises:
+        ConfigError: the document labels no tile.
+    """
+    lo, hi = labels_extent(labels)
+    c = (lo + hi) / 2
+    return float(c[0]), float(c[1])
 
 
 def obstacle_footprints(labels: dict[str, Any]) -> list[np.ndarray]:

@@ -4,7 +4,7 @@ The idea: members trained on different subsets of the families (the fold models 
 :func:`landing_zone.tools.evaluate.lofo.family_folds`) disagree where a tile looks like a family some of
 them never saw, and their mean logit is then less sure there. Measured, it was not enough to
 ship one: members without a third of the families rank worse than one model trained on all of
-them (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").
+them (experiments/2026-12-02_subset_ensemble_and_cosine).
 A :class:`SafetyEnsemble` offers what the rest of the code asks of a
 :class:`~landing_zone.judging.net.SafetyNet` (``embed``, ``head``, ``forward``, ``spec``,
 ``input_pool``, ``temperature`` and ``offset``), so the tiler, :class:`~landing_zone.judging.

@@ -8,7 +8,7 @@ empty space: of the rays that reach a 5 cm voxel of canopy, the median share tha
 7 % (90th percentile 12-20 %), and the rays go on into the voxels below. On an obstacle's
 surface the median share is a third, and the voxel beneath a surface voxel lies inside the
 solid, where no ray gets (measured per voxel on simulated flights of five kinds of vegetation
-with returns labelled by what they hit; ``scripts/guard_eval.py`` measures the guard itself).
+with returns labelled by what they hit; experiments/2026-12-01_guard measures the guard itself).
 
 For every tile, on the same hit / pass counts the tiler reads:
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import ConfigError
-from landing_zone.io.labels import (labels_path_for, obstacle_footprints, read_labels,
-                                    score_report, score_tiles, tile_truth, write_labels)
+from landing_zone.io.labels import (labels_center, labels_extent, labels_path_for,
+                                    obstacle_footprints, read_labels, score_report,
+                                    score_tiles, tile_truth, write_labels)
 from test_grid import hand_made
 
 
@@ -81,3 +82,15 @@ def test_truth_files_round_trip_and_bad_ones_are_one_line(tmp_path):
         read_labels(tmp_path / 'bad.json')
     with pytest.raises(ConfigError, match='cannot read labels'):
         read_labels(tmp_path / 'none.json')
+
+
+def test_the_labels_extent_is_the_squares_of_their_tiles():
+    doc = {'tile_size': 0.5, 'tiles': [{'x': -1.75, 'y': 2.25, 'safe': True},
+                                       {'x': 3.25, 'y': 0.25, 'safe': False},
+                                       {'x': 0.25 + 1e-7, 'y': 4.75, 'safe': True}]}
+    lo, hi = labels_extent(doc)
+    np.testing.assert_allclose(lo, [-2.0, 0.0])
+    np.testing.assert_allclose(hi, [3.5, 5.0])
+    assert labels_center(doc) == pytest.approx((0.75, 2.5))
+    with pytest.raises(ConfigError, match='no tile'):
+        labels_center({'tiles': []})

@@ -55,6 +55,7 @@ def test_colcon_style_install_layout(source, tmp_path):
                           '--single-version-externally-managed', '--record', str(record)],
                          cwd=source, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
+    assert 'Unknown distribution option' not in out.stderr  # no warning of the project's own
     share = prefix / 'share'
     assert (share / 'ament_index' / 'resource_index' / 'packages' / 'landing_zone').is_file()
     assert (share / 'landing_zone' / 'package.xml').read_text() == \
@@ -115,28 +116,189 @@ def _requirement_names(lines) -> dict[str, str]:
     return out
 
 
+def _setup_kwargs() -> dict:
+    import ast
+    tree = ast.parse((ROOT / 'setup.py').read_text())
+    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
+                and getattr(n.func, 'id', '') == 'setup')
+    return {k.arg: k.value for k in call.keywords}
+
+
 def test_robot_install_is_setup_py_minus_rosdep_keys():
     """The robot's pip line installs exactly the dependencies package.xml's rosdep keys leave
     out, in setup.py's own ranges: no ROS wheels, no torch pin, nothing forgotten."""
     import ast
     import xml.etree.ElementTree as ET
-    tree = ast.parse((ROOT / 'setup.py').read_text())
-    call = next(n for n in ast.walk(tree) if isinstance(n, ast.Call)
-                and getattr(n.func, 'id', '') == 'setup')
-    kw = {k.arg: k.value for k in call.keywords}
+    kw = _setup_kwargs()
     install = _requirement_names(ast.literal_eval(kw['install_requires']))
     robot = _requirement_names((ROOT / 'requirements-robot.txt').read_text().splitlines())
     keys = {d.text for d in ET.parse(ROOT / 'package.xml').getroot().iter('exec_depend')}
     # rosdep key -> the pip name it provides
-    by_rosdep = {'python3-numpy': 'numpy', 'python3-scipy': 'scipy',
-                 'python3-sklearn': 'scikit-learn', 'python3-matplotlib': 'matplotlib',
-                 'python3-yaml': 'pyyaml', 'python3-tqdm': 'tqdm',
-                 'python3-trimesh-pip': 'trimesh'}
+    by_rosdep = {'python3-numpy': 'numpy', 'python3-scipy': 'scipy', 'python3-yaml': 'pyyaml',
+                 'python3-tqdm': 'tqdm'}
     python_keys = {k for k in keys if k.startswith('python3-')}
     assert python_keys == set(by_rosdep), 'a python3-* key of package.xml without its pip name'
+    assert set(by_rosdep.values()) <= set(install)
     assert set(robot) == set(install) - set(by_rosdep.values())
     for name, line in robot.items():
         assert line == install[name], f'{name}: robot and setup.py ranges differ'
     assert not any(n.startswith('ros-') for n in robot) and '==' not in ''.join(robot.values())
     assert _requirement_names((ROOT / 'requirements.txt').read_text().splitlines())['torch'] \
         == 'torch==2.13.0', 'the development pins keep the local CPU wheel'
+
+
+def test_one_version():
+    """setup.py, package.xml and `landing-zone --version` (landing_zone.__version__) agree."""
+    import ast
+    import xml.etree.ElementTree as ET
+
+    import landing_zone
+    version = ast.literal_eval(_setup_kwargs()['version'])
+    assert ET.parse(ROOT / 'package.xml').getroot().findtext('version') == version
+    assert landing_zone.__version__ == version
+
+
+# --- the robot's install, by import inspection --------------------------------------------------
+
+# import name -> the distribution that provides it
+DISTRIBUTIONS = {'yaml': 'pyyaml', 'sklearn': 'scikit-learn', 'octomap': 'octomap-python',
+                 'mpl_toolkits': 'matplotlib'}
+# imported only for an optional input, from the extra that provides it
+OPTIONAL = {'laspy': 'survey', 'pyproj': 'survey'}
+# from the system ROS (package.xml) or the [ros] extra; rclpy brings the last four with it
+ROS = {'rclpy', 'std_msgs', 'sensor_msgs', 'nav_msgs', 'geometry_msgs', 'visualization_msgs',
+       'diagnostic_msgs', 'rcl_interfaces', 'builtin_interfaces', 'ament_index_python',
+       'rosidl_runtime_py'}
+# the command line's modules are followed at module level, and into these functions only: the
+# way `landing-zone replay` (and the listing of every command) goes
+CLI = 'landing_zone.tools.cli'
+CLI_PATH = {CLI: ('main', 'command', '_version', '_root'), f'{CLI}.run': ('replay',)}
+
+
+def _module_files() -> dict[str, Path]:
+    out = {}
+    for pkg in ('landing_zone', 'msg_adapters'):
+        for path in sorted((ROOT / pkg).rglob('*.py')):
+            parts = list(path.relative_to(ROOT).with_suffix('').parts)
+            if parts[-1] == '__init__':
+                parts = parts[:-1]
+            out['.'.join(parts)] = path
+    return out
+
+
+def _imports(name: str, path: Path, functions: tuple[str, ...] | None) -> set[str]:
+    """What module ``name`` imports at run time: everywhere (functions None), or at module level
+    and inside the top-level ``functions``; imports under TYPE_CHECKING are left out."""
+    import ast
+
+    tree = ast.parse(path.read_text(encoding='utf-8'))
+    package = name if path.name == '__init__.py' else name.rpartition('.')[0]
+    found: set[str] = set()
+
+    def visit(node, top: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and 'TYPE_CHECKING' in ast.unparse(child.test):
+                for other in child.orelse:
+                    visit(ast.Module(body=[other], type_ignores=[]), top)
+                continue
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if functions is None or (top and child.name in functions):
+                    visit(child, False)
+                continue
+            if isinstance(child, ast.ClassDef):
+                if functions is None:
+                    visit(child, False)
+                continue
+            if isinstance(child, ast.Import):
+                found.update(a.name for a in child.names)
+            elif isinstance(child, ast.ImportFrom):
+                module = child.module or ''
+                if child.level:
+                    base = package.split('.')[:len(package.split('.')) - child.level + 1]
+                    module = '.'.join(base + ([module] if module else []))
+                found.add(module)
+                found.update(f'{module}.{a.name}' for a in child.names)
+            visit(child, top)
+
+    visit(tree, True)
+    return found
+
+
+def _closure(roots: list[str]) -> tuple[set[str], dict[str, set[str]]]:
+    """The project modules reached from ``roots`` and the third-party top-level modules they
+    import (name -> the modules importing it), standard library left out."""
+    files = _module_files()
+    seen: set[str] = set()
+    third: dict[str, set[str]] = {}
+    todo = list(roots)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        in_cli = name == CLI or name.startswith(CLI + '.')
+        for module in _imports(name, files[name], CLI_PATH.get(name, ()) if in_cli else None):
+            top = module.split('.')[0]
+            if top in ('landing_zone', 'msg_adapters'):
+                parts = module.split('.')  # a module and the packages above it
+                todo += [m for m in ('.'.join(parts[:i]) for i in range(1, len(parts) + 1))
+                         if m in files]
+            elif top and top not in sys.stdlib_module_names and top != '__future__':
+                third.setdefault(top, set()).add(name)
+    return seen, third
+
+
+def test_the_node_reaches_no_offline_tool():
+    seen, _ = _closure(['landing_zone.ros.node'])
+    assert 'landing_zone.assessor' in seen and 'msg_adapters.pointcloud' in seen
+    assert not sorted(m for m in seen if m.startswith('landing_zone.tools')), \
+        'the node imports offline tooling'
+
+
+def test_base_install_holds_what_the_robot_imports():
+    """install_requires is what the node, replay and the command line's way to replay import
+    (at module level or inside a function), typer and rich for the command line, and no more;
+    what they import for an optional input is in that input's extra."""
+    import ast
+
+    kw = _setup_kwargs()
+    install = set(_requirement_names(ast.literal_eval(kw['install_requires'])))
+    extras = {k.value: set(_requirement_names(ast.literal_eval(v)))
+              for k, v in zip(kw['extras_require'].keys, kw['extras_require'].values)}
+    node, node_third = _closure(['landing_zone.ros.node'])
+    seen, third = _closure(['landing_zone.ros.node', 'landing_zone.replay', CLI])
+    assert 'landing_zone.replay' in seen and f'{CLI}.run' in seen
+    assert set(node_third) <= set(third)
+    # (landing_zone.tools: the package above the command line, its imports followed)
+    offline = sorted(m for m in seen if m.startswith('landing_zone.tools.')
+                     and not m.startswith(CLI))
+    assert not offline, f'replay reaches offline tooling: {offline}'
+    needed = set()
+    for top, users in sorted(third.items()):
+        dist = DISTRIBUTIONS.get(top, top)
+        if top in ROS:
+            continue
+        if top in OPTIONAL:
+            assert dist in extras[OPTIONAL[top]], f'{top} ({sorted(users)}) not in its extra'
+            assert dist not in install
+            continue
+        assert dist in install, f'{top}, imported by {sorted(users)}, is not in install_requires'
+        needed.add(dist)
+    assert install == needed | {'typer', 'rich'}, \
+        f'install_requires holds what the robot does not import: {install - needed}'
+    assert 'typer' in needed  # the command line's modules import it at module level
+
+
+def test_every_offline_import_has_an_extra():
+    """Every third-party module the package imports anywhere comes from install_requires, an
+    extra, or ROS: `pip install 'landing_zone[sim,learn,ray,survey,bench]'` runs everything."""
+    import ast
+
+    kw = _setup_kwargs()
+    provided = set(_requirement_names(ast.literal_eval(kw['install_requires'])))
+    for extra in kw['extras_require'].values:
+        provided |= set(_requirement_names(ast.literal_eval(extra)))
+    _, third = _closure(sorted(_module_files()))
+    missing = {top: sorted(users)[:3] for top, users in third.items()
+               if top not in ROS and DISTRIBUTIONS.get(top, top) not in provided}
+    assert not missing, f'imported but in no requirement: {missing}'

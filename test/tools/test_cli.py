@@ -73,3 +73,100 @@ def test_calibrate_wants_fold_models_or_like_in_one_line(tmp_path):
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
         assert 'either --fold-model' in res.stderr, res.stderr
     assert not out.exists()
+
+
+def test_version():
+    from landing_zone import __version__
+    out = run_cli('--version')
+    assert out.returncode == 0 and out.stdout.strip() == f'landing-zone {__version__}'
+
+
+def test_help_imports_nothing_heavy():
+    """The listing of every command, and a command's own module, import no stage's library:
+    `landing-zone --help` is instant and runs on the robot's install."""
+    code = ('import sys\n'
+            'from landing_zone.tools.cli import main\n'
+            'try:\n'
+            '    main(["--help"])\n'
+            'except SystemExit:\n'
+            '    pass\n'
+            'heavy = ("torch", "numba", "scipy", "matplotlib", "sklearn", "trimesh", "optuna",\n'
+            '         "ray", "rosbags", "landing_zone.tools.learn", "landing_zone.tools.sim")\n'
+            'print(sorted(m for m in sys.modules if m.split(".")[0] in heavy\n'
+            '             or m.startswith(heavy[-2:])))\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert 'train-fleet' in out.stdout and out.stdout.strip().splitlines()[-1] == '[]'
+
+
+def test_train_options_are_train_config_fields():
+    """train's defaults and help are TrainConfig's, stated there once."""
+    import dataclasses
+
+    from landing_zone.tools.cli import command
+    from landing_zone.tools.learn.train import TrainConfig
+
+    group = command()
+    params = {p.name: p for p in group.commands['train'].command().params}
+    for f in dataclasses.fields(TrainConfig):
+        if f.name in ('arch', 'z_shift', 'yaw'):
+            continue  # arch: the --init model's by default; the augmentation is fixed
+        assert params[f.name].help == f.metadata['help'], f.name
+        if f.default is dataclasses.MISSING:  # a list: absent is empty
+            assert not params[f.name].default, f.name
+        else:
+            assert params[f.name].default == f.default, f.name
+    fleet = {p.name: p for p in group.commands['train-fleet'].command().params}
+    assert fleet['epochs'].default == 3 and fleet['lr'].default == TrainConfig.lr
+    assert fleet['lr'].help == params['lr'].help
+
+
+def test_replay_writes_only_what_it_is_asked_for(tmp_path, model_file):
+    from test_replay import write_flight
+
+    bag = tmp_path / 'flight.mcap'
+    write_flight(bag)
+    png = tmp_path / 'map.png'
+    out = run_cli('replay', str(bag), '--png', str(png), '--model', str(model_file))
+    assert out.returncode == 0, out.stderr
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['flight.mcap', 'map.png']
+    assert out.stdout.strip().splitlines()[-1] == f'wrote {png}'
+
+
+def test_replay_runs_without_the_extras(tmp_path, model_file):
+    """`landing-zone replay` on the robot's install: the extras' libraries made unimportable."""
+    from test_replay import write_flight
+
+    bag = tmp_path / 'flight.mcap'
+    write_flight(bag)
+    code = ('import sys\n'
+            'EXTRAS = {"matplotlib", "sklearn", "trimesh", "embreex", "optuna", "ray", "laspy",\n'
+            '          "pyproj", "octomap", "mpl_toolkits"}\n'
+            'class Block:\n'
+            '    def find_spec(self, name, path=None, target=None):\n'
+            '        if name.split(".")[0] in EXTRAS:\n'
+            '            raise ModuleNotFoundError(f"No module named {name!r}", name=name)\n'
+            'sys.meta_path.insert(0, Block())\n'
+            'from landing_zone.tools.cli import main\n'
+            'main(sys.argv[1:])\n')
+    report = tmp_path / 'r.json'
+    out = subprocess.run([sys.executable, '-c', code, 'replay', str(bag), '--report', str(report),
+                          '--model', str(model_file)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert report.is_file() and out.stdout.strip().splitlines()[-1] == f'wrote {report}'
+    out = subprocess.run([sys.executable, '-c', code, 'replay', str(bag), '--png',
+                          str(tmp_path / 'm.png'), '--model', str(model_file)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and out.stderr.strip().splitlines() == [
+        "landing-zone: error: --png draws with matplotlib: pip install matplotlib (or "
+        "'landing_zone[sim]')"]
+
+
+def test_each_stage_module_is_short():
+    from pathlib import Path
+
+    import landing_zone.tools.cli as cli
+    for path in Path(cli.__file__).parent.glob('*.py'):
+        assert len(path.read_text().splitlines()) <= 300, path.name

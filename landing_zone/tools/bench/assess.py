@@ -62,7 +62,7 @@ from landing_zone.judging.tiles import (CountBuffers, extract_tiles, tile_voxels
 
 from landing_zone.tools.bench.integrate import SENSOR, make_batches
 
-# issue 15's inference budget on the 2-core machine, with everything the judgement needs
+# the inference budget on the 2-core machine, with everything the judgement needs
 TARGET_MAP_S = 0.5
 TARGET_STRIP_S = 0.15
 AIM_MAP_S = 0.25

@@ -4,7 +4,15 @@ Each flight is a bag with its ground truth beside it (``SITE.labels.json`` for `
 as ``simulate-flight`` writes it; :func:`landing_zone.io.labels.labels_path_for`). It is
 replayed through the node's pipeline (:func:`landing_zone.replay.replay`, no output
 bag) and its final tiles are scored (:mod:`landing_zone.io.labels`), per flight and pooled over
-every flight's labelled tiles:
+every flight's labelled tiles.
+
+The map is fixed on the labelled site: its region of interest is centred on the labels'
+extent (:func:`landing_zone.io.labels.labels_center`), or on a ``center`` given. A map that
+follows the sensor forgets the tiles that scroll out behind it, and their obstacles would drop
+out of the score. Where the labels reach past the map, the tiles it covers are scored and the
+others count as unjudged (``labels_outside_map``, ``note``).
+
+Per tile:
 
 * ``auc``: per-tile AUC of P(safe) (safe the positive class) over the judged labelled tiles;
   None when they hold one class only;
@@ -14,7 +22,8 @@ every flight's labelled tiles:
   error); None without obstacle tiles; ``obstacle_passed_0.9``: the same at P(safe) >= 0.9
   (:data:`CONFIDENT`, where a planner acts);
 * ``safe_flagged``: the share of judged safe tiles given P(safe) < 0.5 (false alarms); None
-  without safe tiles;
+  without safe tiles; ``safe_passed_0.9``: the share of judged safe tiles at P(safe) >= 0.9
+  (the ground a planner acting on 0.9 may use);
 * ``unjudged``: the share of labelled tiles left without a P(safe) (not observed enough, or
   outside the map).
 
@@ -27,10 +36,26 @@ unsafe; footprints with an unlabelled tile and no unsafe one are not scored):
 * ``site_ece``: expected calibration error of every judged footprint's P(safe) (centred on
   each tile, listed or not) against its truth; ``footprints``, ``footprints_unsafe``.
 
-Pooled figures are computed on the tiles of all flights together, not averaged over flights.
-Flights are independent tasks (:mod:`landing_zone.tools.engines`): a process pool here or Ray tasks on
-a cluster; replay is deterministic, so the figures do not depend on the engine, the number of
-workers or the order in which flights finish. Only the seconds do.
+Where the robot acts, every footprint centred on a tile, judged with the shipped site limits
+(:class:`landing_zone.config.SiteConfig`, the reasons of
+:class:`landing_zone.judging.sites.Candidates`):
+
+* ``clear_footprints``: clear footprints (every tile under them labelled safe), less those left
+  out only for slope, step or clearance (``clear_footprints_geometry``: the ground, not the
+  judgement, rules them out); ``clear_accepted``: how many of them have no reason to be left
+  out, and ``clear_accepted_share`` their share (None without clear footprints);
+* ``obstacle_footprints``: footprints over a tile labelled unsafe; ``obstacle_accepted``: how
+  many of them have no reason to be left out (the error a planner lands on);
+* ``operating_curve``: the least tile P(safe) as the only threshold (the footprints without a
+  reason but ``obstacle``): for ``k`` in :data:`CURVE_ERRORS`, the lowest threshold at which at
+  most ``k`` footprints over an obstacle are accepted, and the clear footprints accepted there
+  (``{'k': {'threshold', 'clear_accepted', 'share'}}``).
+
+Pooled figures are computed on the tiles (and footprints) of all flights together, not
+averaged over flights: the operating curve is one threshold over every flight's footprints.
+Flights are independent tasks (:mod:`landing_zone.tools.engines`): a process pool here or Ray
+tasks on a cluster; replay is deterministic, so the figures do not depend on the engine, the
+number of workers or the order in which flights finish. Only the seconds do.
 """
 from __future__ import annotations
 
@@ -46,12 +71,16 @@ import numpy as np
 from landing_zone.tools.engines import check_engine, run_tasks
 from landing_zone.errors import BagError, ConfigError
 
-__all__ = ['THRESHOLD', 'CONFIDENT', 'FIGURES', 'flight_task', 'score_flight', 'footprint_truth',
-           'pooled_figures', 'evaluate_flights', 'markdown_flights']
+__all__ = ['THRESHOLD', 'CONFIDENT', 'FIGURES', 'CURVE_ERRORS', 'flight_task', 'score_flight',
+           'footprint_truth', 'footprint_figures', 'operating_curve', 'pooled_figures',
+           'evaluate_flights', 'markdown_flights']
 
 THRESHOLD = 0.5  # P(safe) from which an obstacle tile counts as passed (docs/INTERFACES.md §2)
 CONFIDENT = 0.9  # ... counts as passed confidently: what a planner acting on 0.9 lands on
-FIGURES = ('auc', 'ece', 'obstacle_passed', 'unjudged', 'site_ece', 'sites_over_obstacle')
+FIGURES = ('auc', 'ece', 'obstacle_passed', 'unjudged', 'site_ece', 'sites_over_obstacle',
+           'clear_accepted_share', 'obstacle_accepted')
+# Footprints over an obstacle a planner's threshold may accept: the points of the operating curve.
+CURVE_ERRORS = (0, 1, 5)
 
 
 def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
@@ -72,6 +101,8 @@ def _figures(p: np.ndarray, y: np.ndarray, labelled: int) -> dict[str, Any]:
         'obstacle_passed_0.9': (float((p[unsafe] >= CONFIDENT).mean()) if unsafe.any()
                                 else None),
         'safe_flagged': float((p[~unsafe] < THRESHOLD).mean()) if (~unsafe).any() else None,
+        'safe_passed_0.9': (float((p[~unsafe] >= CONFIDENT).mean()) if (~unsafe).any()
+                            else None),
         'unjudged': 1.0 - len(p) / labelled if labelled else None,
     }
 
@@ -100,15 +131,108 @@ def footprint_truth(truth: np.ndarray, radius: float, tile_size: float) -> np.nd
     return np.where(unsafe > 0, 0, np.where(unlabelled > 0, -1, 1)).astype(np.int8)
 
 
+def footprint_figures(reasons: np.ndarray, p_least: np.ndarray, truth: np.ndarray
+                      ) -> dict[str, Any]:
+    """The footprint figures of one grid of candidates (module docstring).
+
+    Args:
+        reasons: (X, Y) the candidates' reasons to be left out (bits of
+            :data:`landing_zone.judging.sites.REASONS`; 0: accepted).
+        p_least: (X, Y) their least tile P(safe) (NaN where a tile is unknown).
+        truth: (X, Y) :func:`footprint_truth` on the same grid.
+
+    Returns:
+        ``clear_footprints``, ``clear_footprints_geometry``, ``clear_accepted``,
+        ``clear_accepted_share``, ``obstacle_footprints``, ``obstacle_accepted``,
+        ``operating_curve``; and, for pooling, ``_cp`` and ``_op``: the least P(safe) of the
+        clear footprints and of those over an obstacle that only a threshold on it decides.
+    """
+    from landing_zone.judging.sites import CLEARANCE, OBSTACLE, SLOPE, STEP
+
+    reasons = np.asarray(reasons, np.int64)
+    p_least = np.asarray(p_least, np.float64)
+    truth = np.asarray(truth)
+    geometry = SLOPE | STEP | CLEARANCE
+    geometry_only = (reasons != 0) & ((reasons & ~geometry) == 0)
+    clear, over = truth == 1, truth == 0
+    accepted = reasons == 0
+    # the footprints a threshold on the least P(safe) decides: no reason but the judgement's
+    decided = ((reasons & ~OBSTACLE) == 0) & np.isfinite(p_least)
+    n_clear = int((clear & ~geometry_only).sum())
+    cp, op = p_least[clear & decided], p_least[over & decided]
+    out: dict[str, Any] = {
+        'clear_footprints': n_clear,
+        'clear_footprints_geometry': int((clear & geometry_only).sum()),
+        'clear_accepted': int((clear & accepted).sum()),
+        'clear_accepted_share': (int((clear & accepted).sum()) / n_clear if n_clear
+                                 else None),
+        'obstacle_footprints': int(over.sum()),
+        'obstacle_accepted': int((over & accepted).sum()),
+        'operating_curve': operating_curve(cp, op, n_clear)}
+    out['_cp'], out['_op'] = cp, op
+    return out
+
+
+def operating_curve(clear_p: np.ndarray, obstacle_p: np.ndarray, n_clear: int,
+                    errors: Sequence[int] = CURVE_ERRORS) -> dict[str, dict[str, Any]]:
+    """Clear footprints accepted by a threshold on the least tile P(safe) that accepts at most
+    ``k`` footprints over an obstacle, for each ``k`` of ``errors``.
+
+    A footprint is accepted at threshold ``t`` when its least P(safe) >= ``t``. The lowest
+    threshold that keeps to ``k`` lies just above the ``k + 1``-th highest P(safe) over an
+    obstacle: a clear footprint tied with it is not accepted.
+
+    Args:
+        clear_p: least P(safe) of the clear footprints a threshold decides.
+        obstacle_p: the same of the footprints over an obstacle.
+        n_clear: clear footprints of the share's denominator (those a threshold cannot
+            accept, an unknown tile under them, included).
+        errors: the footprints over an obstacle allowed.
+
+    Returns:
+        ``{str(k): {'threshold', 'clear_accepted', 'share'}}``; ``threshold`` is the least
+        P(safe) accepted (None: none is), ``share`` None without clear footprints.
+    """
+    cp = np.asarray(clear_p, np.float64)
+    op = np.sort(np.asarray(obstacle_p, np.float64))[::-1]
+    out = {}
+    for k in errors:
+        bar = op[k] if len(op) > k else -np.inf
+        above = np.concatenate([cp[cp > bar], op[op > bar]])
+        n = int((cp > bar).sum())
+        out[str(k)] = {'threshold': float(above.min()) if len(above) else None,
+                       'clear_accepted': n, 'share': n / n_clear if n_clear else None}
+    return out
+
+
+def labels_task_center(labels: dict[str, Any], center: Sequence[float] | None
+                       ) -> tuple[float, float]:
+    """The region of interest's centre: ``center`` if given, else the labels' extent's."""
+    from landing_zone.io.labels import labels_center
+
+    if center is None:
+        return labels_center(labels)
+    c = [float(v) for v in center]
+    if len(c) != 2 or not all(np.isfinite(c)):
+        raise ConfigError(f'center must be two finite numbers, got {center!r}')
+    return c[0], c[1]
+
+
 def flight_task(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | None = None,
-                points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose'
-                ) -> dict[str, Any]:
+                points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose',
+                center: Sequence[float] | None = None) -> dict[str, Any]:
     """The task of one flight, checked here before any work: the bag and its labels exist and
     the labels parse.
 
+    Args:
+        bag: the flight.
+        model: model file; None the shipped one.
+        points_topic, pose_topic: the topics of the clouds and poses.
+        center: (x, y) of the region of interest; None: the centre of the labels' extent.
+
     Raises:
         BagError: the bag does not exist.
-        ConfigError: its labels file is missing or is no labels file.
+        ConfigError: its labels file is missing or is no labels file, or a bad ``center``.
     """
     from landing_zone.io.labels import labels_path_for, read_labels
 
@@ -119,43 +243,67 @@ def flight_task(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | 
     if not labels.is_file():
         raise ConfigError(f'flight {bag} has no ground truth beside it: {labels} is missing '
                           '(simulate-flight writes it; insert-obstacles extends it)')
-    read_labels(labels)
+    doc = read_labels(labels)
     # absolute: a worker's working directory is not the caller's (on a cluster, the paths
     # must be where every worker mounts them)
     return {'bag': str(bag.resolve()), 'labels': str(labels.resolve()),
             'model': None if model is None else str(Path(model).resolve()),
-            'points_topic': points_topic, 'pose_topic': pose_topic}
+            'points_topic': points_topic, 'pose_topic': pose_topic,
+            'center': list(labels_task_center(doc, center)),
+            'center_from': 'labels' if center is None else 'given'}
 
 
 def score_flight(task: dict[str, Any]) -> dict[str, Any]:
-    """Replay one flight (a :func:`flight_task`) and score its final tiles.
+    """Replay one flight (a :func:`flight_task`) with its map fixed on the task's centre and
+    score its final tiles.
 
     Returns:
-        The flight's figures (:data:`FIGURES`, tile counts, seconds) and, under ``_p`` and
-        ``_y``, the judged labelled tiles' P(safe) and truth for the pooled figures.
+        The flight's figures (:data:`FIGURES`, tile counts, footprints, seconds) and, under
+        names starting with ``_``, what the pooled figures need: the judged labelled tiles'
+        P(safe) and truth, the footprints'.
     """
     from landing_zone.replay import replay
-    from landing_zone.io.labels import read_labels, tile_truth
+    from landing_zone.io.labels import labels_extent, read_labels, tile_truth
 
     t0 = time.perf_counter()
     labels = read_labels(task['labels'])
+    center = task.get('center')
+    if center is None:  # a task made before the centre was part of it
+        center = list(labels_task_center(labels, None))
     res = replay(task['bag'], None, None, None, points_topic=task['points_topic'],
-                 pose_topic=task['pose_topic'], model=task['model'], progress=False)
+                 pose_topic=task['pose_topic'], model=task['model'], progress=False,
+                 center=center)
     a = res.assessment
     truth = tile_truth(a.centers, a.tile_size, labels)
     p = np.asarray(a.p_safe, np.float64)
     judged = (truth >= 0) & np.isfinite(p)
-    out = {'bag': task['bag'], 'labels': task['labels']}
-    out.update(_figures(p[judged], truth[judged].astype(np.int64), len(labels['tiles'])))
+    n_labelled = len(labels['tiles'])
+    out: dict[str, Any] = {'bag': task['bag'], 'labels': task['labels'],
+                           'center': [float(c) for c in center],
+                           'center_from': task.get('center_from', 'labels')}
+    outside = n_labelled - int((truth >= 0).sum())
+    out['labels_outside_map'] = outside
+    if outside:
+        lo, hi = labels_extent(labels)
+        size = np.asarray(a.shape, np.float64) * a.tile_size
+        out['note'] = (f'{outside} of {n_labelled} labelled tiles lie outside the '
+                       f'{size[0]:g} m x {size[1]:g} m map centred at '
+                       f'({center[0]:g}, {center[1]:g}) (the labels span '
+                       f'{hi[0] - lo[0]:g} m x {hi[1] - lo[1]:g} m): scored as unjudged')
+    out.update(_figures(p[judged], truth[judged].astype(np.int64), n_labelled))
     # the footprints: truth on the candidates' grid (the tiles' x-major order)
     fp, fy, over = np.zeros(0), np.zeros(0, np.int8), 0
+    feet: dict[str, Any] = footprint_figures(np.zeros((0, 0), np.uint8), np.zeros((0, 0)),
+                                             np.zeros((0, 0), np.int8))
     if a.candidates is not None and len(a):
         ftruth = footprint_truth(a.grid(truth), a.footprint_radius, a.tile_size)
         scored = (ftruth >= 0) & np.isfinite(a.candidates.p_safe)
         fp, fy = a.candidates.p_safe[scored], ftruth[scored]
         origin = np.asarray(a.origin)
         over = sum(int(ftruth[tuple(np.asarray(s.index) - origin)] == 0) for s in a.sites)
+        feet = footprint_figures(a.candidates.reasons, a.candidates.p_safe, ftruth)
     out.update(_site_figures(fp, fy, len(a.sites), over))
+    out.update(feet)
     out['clouds'] = int(res.stats.get('clouds', 0))
     out['seconds'] = round(time.perf_counter() - t0, 3)
     out['_p'] = p[judged].astype(np.float32)
@@ -176,6 +324,23 @@ def pooled_figures(flights: Sequence[dict[str, Any]]) -> dict[str, Any]:
                         [np.zeros(0, np.int64)])
     out.update(_site_figures(fp, fy, sum(f['sites_listed'] for f in flights),
                              sum(f['sites_over_obstacle'] for f in flights)))
+    # the footprints: sums, and one threshold over every flight's footprints
+    n_clear = sum(f.get('clear_footprints', 0) for f in flights)
+    accepted = sum(f.get('clear_accepted', 0) for f in flights)
+    cp = np.concatenate([np.asarray(f.get('_cp', []), np.float64) for f in flights]
+                        + [np.zeros(0)])
+    op = np.concatenate([np.asarray(f.get('_op', []), np.float64) for f in flights]
+                        + [np.zeros(0)])
+    out.update({
+        'labels_outside_map': sum(f.get('labels_outside_map', 0) for f in flights),
+        'clear_footprints': n_clear,
+        'clear_footprints_geometry': sum(f.get('clear_footprints_geometry', 0)
+                                         for f in flights),
+        'clear_accepted': accepted,
+        'clear_accepted_share': accepted / n_clear if n_clear else None,
+        'obstacle_footprints': sum(f.get('obstacle_footprints', 0) for f in flights),
+        'obstacle_accepted': sum(f.get('obstacle_accepted', 0) for f in flights),
+        'operating_curve': operating_curve(cp, op, n_clear)})
     return out
 
 
@@ -183,25 +348,29 @@ def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'l
                      address: str | None = None, workers: int | None = None,
                      model: str | os.PathLike[str] | None = None,
                      points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose',
-                     json_path: str | os.PathLike[str] | None = None) -> dict[str, Any]:
+                     json_path: str | os.PathLike[str] | None = None,
+                     center: Sequence[float] | None = None) -> dict[str, Any]:
     """Replay and score every flight; the figures per flight (in the order given) and pooled.
 
     Args:
         bags: the flights, each with ``SITE.labels.json`` beside it.
         engine: ``local`` (a process pool) or ``ray`` (one Ray task per flight).
-        address: the Ray cluster (:func:`landing_zone.tools.engines.run_tasks`); default a local one.
+        address: the Ray cluster (:func:`landing_zone.tools.engines.run_tasks`); default a
+            local one.
         workers: processes, or the CPUs of a local Ray cluster (default: one per core).
         model: model file; default the shipped one (it must be readable where the tasks run).
         points_topic, pose_topic: the topics of the clouds and poses.
         json_path: write the results document here.
+        center: (x, y) of the region of interest of every flight; None: each flight's map is
+            centred on its labels' extent.
 
     Returns:
         ``{'engine', 'model', 'threshold', 'flights': [...], 'pooled': {...}, 'seconds',
         'flights_per_s', 'workers'}``.
 
     Raises:
-        ConfigError, BagError: no flight, a missing bag or labels file (before any work), or
-            what replaying a flight raised.
+        ConfigError, BagError: no flight, a missing bag or labels file, a bad centre (before
+            any work), or what replaying a flight raised.
         EngineError: an unknown engine, Ray missing, a worker that died.
     """
     check_engine(engine, address)
@@ -209,8 +378,8 @@ def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'l
         raise ConfigError('evaluate-flights needs at least one flight bag')
     if model is not None and not Path(model).is_file():
         raise ConfigError(f'model {model} does not exist')
-    tasks = [flight_task(b, model=model, points_topic=points_topic, pose_topic=pose_topic)
-             for b in bags]
+    tasks = [flight_task(b, model=model, points_topic=points_topic, pose_topic=pose_topic,
+                         center=center) for b in bags]
     n = min(workers or len(os.sched_getaffinity(0)), len(tasks))
     t0 = time.perf_counter()
     results: list[dict[str, Any] | None] = [None] * len(tasks)
@@ -239,7 +408,8 @@ def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'l
 
 
 def markdown_flights(doc: dict[str, Any]) -> str:
-    """The per-flight and pooled figures as a markdown table."""
+    """The per-flight and pooled figures as markdown tables: the tiles, then the footprints
+    (where the results carry them), then any flight's note."""
     def num(v: float | None, fmt: str) -> str:
         return '-' if v is None else format(v, fmt)
 
@@ -258,4 +428,22 @@ def markdown_flights(doc: dict[str, Any]) -> str:
                      f'{num(f["safe_flagged"], ".1%")} | '
                      f'{num(f["unjudged"], ".1%")} | {f["sites_over_obstacle"]} of '
                      f'{f["sites_listed"]} | {num(f["site_ece"], ".3f")} |')
+    if all('clear_footprints' in f for _, f in rows):
+        ks = list(doc['pooled']['operating_curve'])
+        lines += ['', '| flight | safe tiles at P(safe) >= 0.9 | clear footprints accepted | '
+                  'footprints over an obstacle accepted | '
+                  + ' | '.join(f'clear accepted at {k} over an obstacle' for k in ks) + ' |',
+                  '|---|---:|---:|---:|' + '---:|' * len(ks)]
+        for name, f in rows:
+            curve = [f['operating_curve'][k] for k in ks]
+            lines.append(
+                f'| {name} | {num(f.get("safe_passed_0.9"), ".1%")} | '
+                f'{num(f["clear_accepted_share"], ".1%")} ({f["clear_accepted"]} of '
+                f'{f["clear_footprints"]}) | {f["obstacle_accepted"]} of '
+                f'{f["obstacle_footprints"]} | '
+                + ' | '.join(f'{num(c["share"], ".1%")} (P >= {num(c["threshold"], ".3f")})'
+                             for c in curve) + ' |')
+    notes = [f'{Path(f["bag"]).name}: {f["note"]}' for f in doc['flights'] if f.get('note')]
+    if notes:
+        lines += [''] + notes
     return '\n'.join(lines) + '\n'

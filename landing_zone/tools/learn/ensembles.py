@@ -10,7 +10,7 @@ only where none of its members saw it, and ``calibrate`` takes such ensembles as
 
 The members' own calibrations are not used: the ensemble's mean logit gets its own, fitted by
 ``landing-zone calibrate`` on ensembles of members that never saw the families it is fitted on
-(``scripts/lofo_calibrated.py`` copies it into those, to judge them as the shipped one judges).
+(the leave-one-family-out pipeline copies it into those, to judge them as the shipped one judges).
 """
 from __future__ import annotations
 

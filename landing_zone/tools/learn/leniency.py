@@ -18,7 +18,7 @@ noise in training mode) costs little and the push stops once the net is no more 
 The trained net's logit is its training-mode one (dropout on), so the penalty charges dropout's
 noise too (edge15 on thin obstacles: 0.16 per obstacle sample at weight 1 before any step).
 Comparing like with like was measured and did worse on the site-adaptation check
-(docs/EXPERIMENTS.md, session 19): with both nets judged in eval mode the fine-tuned model cut
+(experiments/2026-12-04_leniency_drift): with both nets in eval mode the fine-tuned model cut
 no false alarms on the held-out grass (2 seeds of 2), and with the copy in training mode under
 the same dropout masks the loss diverged at lr 0.001; with this penalty the check held on the
 same site and seed (false alarms 12 -> 8 of 162 and 36 -> 21 of 384).

@@ -25,7 +25,7 @@ Files beside ``--out`` (for ``model.safetensors``):
   after every epoch and every ``checkpoint_minutes``; ``--resume`` continues from it.
 - ``model.log.csv``: one row per epoch: train loss, validation loss and AUC, time.
 
-Fine-tuning (``init``, e.g. to a site: README, "Site adaptation") is conservative by default:
+Fine-tuning (``init``, e.g. to a site: docs/SITE_ADAPTATION.md) is conservative by default:
 the loss penalises every obstacle sample the net judges safer than the initial net does
 (:mod:`landing_zone.tools.learn.leniency`), and the model keeps the initial model's calibration
 (fitted on families it never saw), its offset lowered where the validation obstacles need it
@@ -71,44 +71,45 @@ __all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
 class TrainConfig:
     """How to train; stored in the checkpoint."""
 
-    arch: str = DEFAULT_SPEC  # network spec (model.parse_spec)
-    epochs: int = 6
-    lr: float = 0.01  # SGD learning rate
-    # 'constant' (the paper's) or 'cosine': lr * (1 + cos(pi * t)) / 2 over the run's batches,
-    # t from 0 to 1 (a function of the batch count, so a resumed run continues it exactly)
-    lr_schedule: str = 'constant'
-    momentum: float = 0.9
-    weight_decay: float = 5e-4  # L2 penalty
-    batch_size: int = 20
-    augment_copies: int = 20  # augmented samples of every training scene per epoch
-    max_samples: int = 0  # cap on training samples per epoch (0 = no cap)
-    # an even subset of this many scenes (whole twin pairs) after hold_out (0 = all): bounds
-    # the memory the scenes take (about 16 bytes per return: a synth3 scene 0.3 MB)
-    max_scenes: int = 0
-    val_fraction: float = 0.1  # share of the training scenes held out (per class)
-    workers: int = 0  # DataLoader worker processes (0 = in the training process)
-    seed: int = 0
-    device: str = 'cpu'
-    dropout: float = 0.5  # after every conv / dense layer
+    arch: str = field(default=DEFAULT_SPEC, metadata={'help': 'Network spec (judging.spec).'})
+    epochs: int = field(default=6, metadata={'help': 'Passes over the augmented training set.'})
+    lr: float = field(default=0.01, metadata={'help': 'SGD learning rate.'})
+    lr_schedule: str = field(default='constant', metadata={
+        'choices': ('constant', 'cosine'),
+        'help': "constant (the paper's) or cosine (the rate falls to 0 over the run)."})
+    momentum: float = field(default=0.9, metadata={'help': 'SGD momentum.'})
+    weight_decay: float = field(default=5e-4, metadata={'help': 'L2 penalty.'})
+    batch_size: int = field(default=20, metadata={'help': 'Samples per minibatch.'})
+    augment_copies: int = field(default=20, metadata={
+        'help': 'Augmented samples of every scene per epoch.'})
+    max_samples: int = field(default=0, metadata={'help': 'Cap on samples per epoch (0: none).'})
+    max_scenes: int = field(default=0, metadata={
+        'help': 'An even subset of this many scenes, whole twin pairs (0: all): bounds memory.'})
+    val_fraction: float = field(default=0.1, metadata={
+        'help': 'Share of training scenes held out for validation and calibration.'})
+    workers: int = field(default=0, metadata={'help': 'Data loader processes (0: in-process).'})
+    seed: int = field(default=0, metadata={'help': 'Seed of init, split and augmentation.'})
+    device: str = field(default='cpu', metadata={'choices': ('cpu', 'cuda'),
+                                                 'help': 'Where to train.'})
+    dropout: float = field(default=0.5, metadata={'help': 'Dropout after each layer.'})
     z_shift: float = 0.3  # augmentation: vertical shift uniform in [-z_shift, z_shift] [m]
     yaw: bool = True  # augmentation: yaw uniform in [0, 2 pi)
-    # augmentation: share of samples whose context is cut off beyond a random line in the
-    # padding (one side, or two: a corner), as at the edge of a scanned area
-    edge_drop: float = 0.3
-    checkpoint_minutes: float = 10.0  # training state also saved this often within an epoch
-    cache_voxels: int = 0  # >0: pre-voxelize this many augmented copies per scene once
-    # 'auto': bf16 autocast on CUDA for batches of 64 or more, else fp32; 'fp32'; 'bf16'
-    precision: str = 'auto'
-    # families left out of the training scenes, 'AXIS:FAMILY' (synth3; see landing_zone.tools.evaluate.lofo)
-    hold_out: list[str] = field(default_factory=list)
-    # with an initial model (train --init): the weight of the penalty on obstacle samples the
-    # net judges safer than the initial net did (landing_zone.tools.learn.leniency; 0 = none)
-    leniency_penalty: float = 1.0
-    # 'refit': the temperature fitted on the validation scenes; 'guarded': the initial model's
-    # T and b, b lowered until no more validation obstacles pass at 0.5 or 0.9 than under the
-    # initial model (landing_zone.tools.learn.guarded_calibration; needs an initial model); 'auto':
-    # guarded with an initial model, else refit
-    calibration: str = 'auto'
+    edge_drop: float = field(default=0.3, metadata={
+        'help': 'Share of samples cut off beyond a random line, as at the edge of a scan.'})
+    checkpoint_minutes: float = field(default=10.0, metadata={
+        'help': 'Also save the training state this often within an epoch.'})
+    cache_voxels: int = field(default=0, metadata={
+        'help': 'Pre-voxelize this many augmented copies per scene once (0: on the fly).'})
+    precision: str = field(default='auto', metadata={'help': 'auto (bf16 on CUDA), fp32 or bf16.'})
+    hold_out: list[str] = field(default_factory=list, metadata={
+        'help': 'Leave a family out of training, AXIS:FAMILY (obstacle:log, vegetation:lodged, '
+                'terrain:sloped, sensor:rosette; synth3 data); repeat for more.'})
+    leniency_penalty: float = field(default=1.0, metadata={  # tools.learn.leniency
+        'help': 'With --init: penalty on obstacles judged safer than by --init (0: none).'})
+    calibration: str = field(default='auto', metadata={  # tools.learn.guarded_calibration
+        'choices': ('auto', 'refit', 'guarded'),
+        'help': "refit: T fitted on the validation scenes; guarded: the --init model's T and b, "
+                'b lowered until no more validation obstacles pass; auto: guarded with --init.'})
 
     def validate(self) -> None:
         SafetyNetConfig(self.arch, dropout=self.dropout).validate()

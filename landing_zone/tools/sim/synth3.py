@@ -37,8 +37,8 @@ ground (its upper half, if lower) reaches 5-30 cm into the tile (:data:`EDGE_REA
 safe one the whole of it stands 15-30 cm beyond the edge (:data:`EDGE_GAP`), where the
 network's 30 cm of context still sees it (an obstacle in the next tile, as on every site).
 Closer than 15 cm the 10 cm pooled input barely tells beyond from in, and safe scenes there
-taught the net to hedge on every tile (``docs/EXPERIMENTS.md``, "obstacles at the tile's
-edge"). Elsewhere a safe scene holds no obstacle and an unsafe one's
+taught the net to hedge on every tile (``experiments/2026-12-03_obstacles_at_the_edge``).
+Elsewhere a safe scene holds no obstacle and an unsafe one's
 obstacle reaches at least half its radius in, so without these pairs the net never learns where
 a neighbour's obstacle ends. Such a dataset records the share in ``meta.json`` and mixes it into
 every seed, as other ``families`` are.
