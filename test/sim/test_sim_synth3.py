@@ -389,7 +389,8 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
     with pytest.raises(DatasetError):
         simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2,
                          progress=False, edge=1.0)
-    from landing_zone.tools.sim.obstacles import at_edge, get_model
+    from landing_zone.tools.sim.library import get_model
+    from landing_zone.tools.sim.obstacles import at_edge
     with pytest.raises(SimulationError, match='either reach or gap'):
         at_edge(get_model('box'), 0.0, 0, 0.0, 0.5, 0.1)
     with pytest.raises(SimulationError, match='--edge must be a share'):

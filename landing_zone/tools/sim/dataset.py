@@ -58,7 +58,7 @@ def progress_bar(total: int, initial: int, enabled: bool, desc: str) -> Any:
 
 def _plan_meta(dataset: str, seed: int, split: str, scenes: int | None, shard_size: int,
                selected: np.ndarray) -> dict[str, Any]:
-    from landing_zone.tools.sim.obstacles import models
+    from landing_zone.tools.sim.library import models
     from landing_zone.tools.sim.scene import PatchConfig
     sweep = get_sweep(dataset)
     plans = [scene_plan(dataset, int(i)) for i in selected]

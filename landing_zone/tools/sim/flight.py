@@ -50,7 +50,8 @@ from landing_zone.tools.sim.grass import (VEGETATION_PRESETS, Bush, GrassConfig,
                                     vegetation_blades)
 from landing_zone.tools.sim.mesh import Mesh
 from landing_zone.tools.sim.families import draw_instance, keep_visible, parse_families
-from landing_zone.tools.sim.obstacles import Obstacle, models, place
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.obstacles import Obstacle, place
 from landing_zone.tools.sim.scene import World
 from landing_zone.tools.sim.sensor import (SCAN_PATTERNS, BrownianWalk, Returns, ScanPattern,
                                      SensorConfig, mount_frame, path_scan)

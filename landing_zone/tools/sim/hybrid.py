@@ -256,7 +256,8 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
     from landing_zone.tools.sim.placement import SINK, ground_height, ground_radius
     from landing_zone.tools.sim.sweeps import SWEEPS, choose_model
     from landing_zone.tools.sim.mesh import OBSTACLE
-    from landing_zone.tools.sim.obstacles import Obstacle, get_model
+    from landing_zone.tools.sim.library import get_model
+    from landing_zone.tools.sim.obstacles import Obstacle
 
     split = str(plan['splits'][t])
     rng = np.random.default_rng(np.random.SeedSequence([seed, HYBRID_CODE, plan['index'], t]))
@@ -312,7 +313,7 @@ def _hybrid_meta(flights: list[dict[str, Any]], shards: list[dict[str, Any]],
                  counts: dict[str, dict[str, int]]) -> dict[str, Any]:
     from landing_zone.tools.sim.shards import FORMAT_VERSION
     from landing_zone.tools.sim.sweeps import SWEEPS
-    from landing_zone.tools.sim.obstacles import models
+    from landing_zone.tools.sim.library import models
     from landing_zone.tools.sim.scene import PatchConfig
 
     kinds = SWEEPS['synth2'].kinds

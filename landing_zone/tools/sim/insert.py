@@ -54,7 +54,8 @@ import numpy as np
 from landing_zone.errors import BagError, ConfigError, SimulationError
 from landing_zone.io.labels import labels_path_for, read_labels, write_labels
 from landing_zone.tools.sim.alteration import RANGE_SIGMA, ObstacleScene
-from landing_zone.tools.sim.obstacles import Obstacle, models
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.obstacles import Obstacle
 from landing_zone.tools.sim.placement import DEFAULT_KINDS, SINK, place_obstacles
 from landing_zone.tools.sim.recorded import alter_cloud, read_flight
 

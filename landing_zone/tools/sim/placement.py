@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from landing_zone.errors import ConfigError, SimulationError
-from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel, models
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel
 
 __all__ = ['ground_height', 'ground_radius', 'place_obstacles', 'DEFAULT_KINDS', 'SINK',
            'MIN_SEPARATION']
@@ -108,7 +109,7 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
         points: (N, 3) returns of the flight [m].
         count: obstacles to place.
         rng: all randomness of the placement.
-        kinds: obstacle kinds (see :data:`~landing_zone.tools.sim.obstacles.KINDS`).
+        kinds: obstacle kinds (see :data:`~landing_zone.tools.sim.library.KINDS`).
         group: ``train`` or ``test`` models (as the datasets split them), None for any.
         region: ``(x0, y0, x1, y1)``.
         families: obstacle families (:data:`~landing_zone.tools.sim.families.FAMILIES`).

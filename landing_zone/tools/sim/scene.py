@@ -25,7 +25,8 @@ import numpy as np
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.grass import GrassConfig, grass_mesh
 from landing_zone.tools.sim.mesh import Mesh
-from landing_zone.tools.sim.obstacles import Obstacle, get_model, place
+from landing_zone.tools.sim.library import get_model
+from landing_zone.tools.sim.obstacles import Obstacle, place
 from landing_zone.tools.sim.raycast import RayCaster
 from landing_zone.tools.sim.sensor import (HoverScan, SensorConfig, _HoverGeometry,
                                      estimate_nod_rate, hover_scan)
@@ -74,7 +75,7 @@ class PatchConfig:
     sensor: SensorConfig = field(default_factory=SensorConfig)
     sensor_offset: float = -5.0  # x of the hovering sensor, relative to the tile centre [m]
     sensor_height: float = 4.0  # height of the sensor above the nominal ground [m]
-    obstacle: str | None = None  # obstacle model name (see obstacles.library()); None: safe
+    obstacle: str | None = None  # obstacle model name (see library.library()); None: safe
     tile_size: float = 1.0  # edge of the tile (the area of interest) [m]
     padding: float = 0.3  # the column reaches this far beyond the tile on every side [m]
     column_below: float = 1.0  # the column reaches this far below the nominal ground [m]

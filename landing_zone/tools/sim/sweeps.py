@@ -142,7 +142,7 @@ def select_scenes(dataset: str, scenes: int | None = None, split: str = 'both') 
 
 
 def choose_model(sweep: Sweep, split: str, rng: np.random.Generator) -> str:
-    from landing_zone.tools.sim.obstacles import models
+    from landing_zone.tools.sim.library import models
     if sweep.kinds == ('box',):
         return 'box'
     kinds = list(sweep.kinds)
