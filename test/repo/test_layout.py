@@ -155,6 +155,6 @@ def test_modules_are_short_or_one_concept():
 def test_old_flat_modules_are_gone():
     # no compatibility shims: the pre-0.3.0 paths do not import
     for old in ('model', 'tiles', 'raytrace', 'density_map', 'sites', 'stream', 'node', 'play',
-                'replay', 'bagio', 'insert', 'train', 'evaluate', 'tune', 'calibration',
+                'bagio', 'insert', 'train', 'evaluate', 'tune', 'calibration',
                 'baselines', 'benchmarks'):
         assert f'landing_zone.{old}' not in MODULES, old

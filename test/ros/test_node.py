@@ -581,7 +581,7 @@ def test_params_file_has_the_ros_layout_and_every_default():
     from landing_zone.config import default_parameters
     from landing_zone.io.params import read_params_file
 
-    root = os.path.join(os.path.dirname(__file__), '..', 'config', 'assessor.yaml')
+    root = os.path.join(os.path.dirname(__file__), '..', '..', 'config', 'assessor.yaml')
     flat = read_params_file(root)
     assert flat == default_parameters()  # the file states every default, nothing else
     doc = yaml.safe_load(open(root))
