@@ -155,7 +155,8 @@ def column_rays(points: np.ndarray, cloud: np.ndarray, origins: np.ndarray,
 
 def _tile_split(tiles: np.ndarray) -> np.ndarray:
     """A fifth of the tiles (by a hash of their index) are test tiles."""
-    from landing_zone.tools.sim.sweeps import TEST_FRACTION, mix
+    from landing_zone.tools.sim.hashing import mix
+    from landing_zone.tools.sim.sweeps import TEST_FRACTION
     keys = (tiles[:, 0].astype(np.int64) & 0xFFFFFFFF) << 32 | (tiles[:, 1] & 0xFFFFFFFF)
     h = mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
     return h < np.uint64(int(1000 * TEST_FRACTION))
