@@ -10,7 +10,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ('landing_zone', 'msg_adapters')
 # the core: the onboard pipeline's own modules, importable without ROS or the tooling
