@@ -61,7 +61,8 @@ from landing_zone.judging.ground import slope_deg
 from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_sites
 from landing_zone.judging.tile_state import TileState
 from landing_zone.judging.tiles import CountBuffers, tile_voxels
-from landing_zone.mapping.density_map import DensityMap, IntegrationStats
+from landing_zone.mapping.density_map import DensityMap
+from landing_zone.mapping.rays import IntegrationStats
 from landing_zone.mapping.window import Window
 
 __all__ = ['Assessor', 'Assessment', 'default_model_path', 'tile_confidence',
