@@ -334,7 +334,7 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
     default one, and refuses to be resumed with another share."""
     from landing_zone.errors import SimulationError
     from landing_zone.tools.sim.families import instance
-    from landing_zone.tools.sim.flight import polygon_overlaps_square
+    from landing_zone.tools.sim.flight_site import polygon_overlaps_square
     from landing_zone.tools.sim.obstacles import Obstacle
     from landing_zone.tools.sim.synth3 import EDGE_GAP, EDGE_REACH
 

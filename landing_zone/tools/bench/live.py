@@ -46,7 +46,8 @@ REMAP = {'points': '/lidar/points', 'sensor_pose': '/lidar/pose'}
 
 
 def _flight(tmp: Path, seed: int) -> Path:
-    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import simulate_flight
+    from landing_zone.tools.sim.flight_config import FlightConfig
     return simulate_flight(FlightConfig(seed=seed), tmp / 'site.mcap').bag
 
 

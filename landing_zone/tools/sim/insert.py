@@ -109,7 +109,7 @@ def update_labels(labels: dict[str, Any] | None, obstacles: Sequence[Obstacle],
     Returns:
         A new document; ``labels`` is not changed.
     """
-    from landing_zone.tools.sim.flight import tile_labels
+    from landing_zone.tools.sim.flight_site import tile_labels
 
     if labels is not None:
         doc = copy.deepcopy(labels)
