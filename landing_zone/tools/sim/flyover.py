@@ -33,9 +33,10 @@ import numpy as np
 
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.raycast import RayCaster
-from landing_zone.tools.sim.sensor import (BrownianWalk, HoverScan, Returns, ScanPattern, SensorConfig,
-                                     direction_angles, mount_frame, ray_box_interval,
-                                     scan_directions)
+from landing_zone.tools.sim.hover import HoverScan
+from landing_zone.tools.sim.sensor import (BrownianWalk, Returns, ScanPattern, SensorConfig,
+                                           direction_angles, mount_frame, ray_box_interval,
+                                           scan_directions)
 
 __all__ = ['Flyover', 'FlyoverPlan', 'FlyoverScan', 'plan_flyover', 'flyover_scan',
            'flyover_window', 'angular_speed']

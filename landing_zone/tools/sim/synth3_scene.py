@@ -21,7 +21,8 @@ from landing_zone.tools.sim.flyover import Flyover, flyover_scan, plan_flyover
 from landing_zone.tools.sim.mesh import Mesh
 from landing_zone.tools.sim.obstacles import Obstacle, at_edge, place
 from landing_zone.tools.sim.scene import PatchConfig, World, hover_plan, view_region
-from landing_zone.tools.sim.sensor import ScanPattern, SensorConfig, hover_scan
+from landing_zone.tools.sim.hover import hover_scan
+from landing_zone.tools.sim.sensor import ScanPattern, SensorConfig
 from landing_zone.tools.sim.synth3 import EDGE_TALL, SYNTH3_CODE, check_edge, check_families, \
     scene_plan, variant_key
 from landing_zone.tools.sim.terrain import SlopedTerrain, Terrain, TerrainConfig
