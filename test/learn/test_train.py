@@ -15,7 +15,8 @@ from landing_zone.judging.patches import scene_to_input
 from landing_zone.tools.learn.samples import AugmentedVolumes, EpochSampler, cut_context, voxelize
 from landing_zone.tools.learn.scenes import ScenePack, split_scenes
 from landing_zone.tools.learn.state import log_path, state_path
-from landing_zone.tools.learn.train import TrainConfig, roc_auc, train
+from landing_zone.tools.learn.fitting import roc_auc
+from landing_zone.tools.learn.train import TrainConfig, train
 
 SMALL = 'C5-F8-P2-D32'
 
