@@ -29,7 +29,7 @@ Fine-tuning (``init``, e.g. to a site: README, "Site adaptation") is conservativ
 the loss penalises every obstacle sample the net judges safer than the initial net does
 (:mod:`landing_zone.tools.learn.leniency`), and the model keeps the initial model's calibration
 (fitted on families it never saw), its offset lowered where the validation obstacles need it
-(:mod:`landing_zone.tools.learn.guarded_calibration`); a temperature refitted on the validation
+(:mod:`landing_zone.tools.learn.anchored_calibration`); a temperature refitted on the validation
 scenes would hold on the training families only.
 """
 from __future__ import annotations
@@ -57,8 +57,8 @@ from landing_zone.tools.evaluate.lofo import SceneSubset, dataset_names, hold_ou
 from landing_zone.tools.learn.calibration import binary_nll, expected_calibration_error, \
     fit_temperature
 from landing_zone.tools.learn.fitting import Fit, evaluate_logits, run_epochs
-from landing_zone.tools.learn.guard_sets import GuardSets, check_held_out, guard_offset, \
-    load_guard_sets
+from landing_zone.tools.learn.anchor_sets import AnchorSets, check_held_out, anchor_offset, \
+    load_anchor_sets
 from landing_zone.tools.learn.leniency import LeniencyPenalty
 from landing_zone.tools.learn.samples import AugmentedVolumes, EpochSampler, VoxelCache, \
     make_loader, voxelize
@@ -111,10 +111,10 @@ class TrainConfig:
     # with an initial model (train --init): the weight of the penalty on obstacle samples the
     # net judges safer than the initial net did (landing_zone.tools.learn.leniency; 0 = none)
     leniency_penalty: float = 1.0
-    # 'refit': the temperature fitted on the validation scenes; 'guarded': the initial model's
+    # 'refit': the temperature fitted on the validation scenes; 'anchored': the initial model's
     # T and b, b lowered until no more validation obstacles pass at 0.5 or 0.9 than under the
-    # initial model (landing_zone.tools.learn.guarded_calibration; needs an initial model); 'auto':
-    # guarded with an initial model, else refit
+    # initial model (landing_zone.tools.learn.anchored_calibration; needs an initial model); 'auto':
+    # anchored with an initial model, else refit
     calibration: str = 'auto'
 
     def validate(self) -> None:
@@ -142,8 +142,8 @@ class TrainConfig:
         if self.precision not in ('auto', 'fp32', 'bf16'):
             raise ConfigError(f"precision must be 'auto', 'fp32' or 'bf16', got "
                               f'{self.precision!r}')
-        if self.calibration not in ('auto', 'refit', 'guarded'):
-            raise ConfigError(f"calibration must be 'auto', 'refit' or 'guarded', got "
+        if self.calibration not in ('auto', 'refit', 'anchored'):
+            raise ConfigError(f"calibration must be 'auto', 'refit' or 'anchored', got "
                               f'{self.calibration!r}')
         if not (self.device == 'cpu' or self.device.startswith('cuda')):
             raise ConfigError(f"device must be 'cpu' or 'cuda[:N]', got {self.device!r}")
@@ -178,7 +178,7 @@ class _Data:
 def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
           resume: bool = False, init: str | os.PathLike | None = None,
           map_cfg: MapConfig | None = None, tile_cfg: TileConfig | None = None,
-          progress: bool = True, guard_data: Any = None) -> dict[str, Any]:
+          progress: bool = True, anchor_data: Any = None) -> dict[str, Any]:
     """Train a net and write it (calibrated) to ``out``.
 
     Args:
@@ -191,14 +191,14 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         init: start from the weights of this model (same spec; an ensemble is fine-tuned as
             one net) instead of random ones; then
             by default the loss penalises obstacle samples judged safer than this model judges
-            them (``config.leniency_penalty``) and the model keeps its calibration, guarded on
+            them (``config.leniency_penalty``) and the model keeps its calibration, anchored on
             the validation obstacles (``config.calibration``).
         map_cfg: voxel size of the inputs (default MapConfig()).
         tile_cfg: tiling of the inputs (default TileConfig()).
         progress: show progress bars on stderr.
-        guard_data: with the guarded calibration: a dataset directory, or a list of datasets
+        anchor_data: with the anchored calibration: a dataset directory, or a list of datasets
             (directories or scene sequences; a directory's train split), never trained on,
-            whose obstacle scenes the guard also holds on, each set a group of its own:
+            whose obstacle scenes the anchor also holds on, each set a group of its own:
             families the fine-tuning must not grow lenient on though it never sees them, e.g.
             thin open structure while adapting to a site's sparse grass.
 
@@ -211,7 +211,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     # the settings: training, calibration, inputs, precision
     cfg = config if config is not None else TrainConfig()
     cfg.validate()
-    calibration = _calibration_method(cfg, init, guard_data, data)
+    calibration = _calibration_method(cfg, init, anchor_data, data)
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     mcfg.validate()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
@@ -223,8 +223,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     # the data: validation scenes held out by scene, per class
     t_load = time.perf_counter()
     source, source_name, d = _load_data(data, cfg, mcfg, tcfg, progress)
-    guard = load_guard_sets(guard_data, mcfg, tcfg, cfg.workers, progress) \
-        if guard_data is not None else None
+    anchors = load_anchor_sets(anchor_data, mcfg, tcfg, cfg.workers, progress) \
+        if anchor_data is not None else None
     load_seconds = time.perf_counter() - t_load
     # the net and the optimizer, resumed where a run stopped
     model, src, penalty, opt = _make_model(cfg, side, init, device)
@@ -248,7 +248,7 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     logits, val_loss, val_auc = evaluate_logits(model, d.val_inputs, d.val_labels,
                                                 eval_precision)
     temperature, offset, calibration_meta = _calibrate(
-        calibration, model, src, init, logits, d, guard, part_names(source, source_name),
+        calibration, model, src, init, logits, d, anchors, part_names(source, source_name),
         device, eval_precision, progress)
     model.temperature, model.offset = temperature, offset
     metrics = _metrics(logits, d.val_labels.numpy(), val_loss, val_auc, temperature, offset,
@@ -264,18 +264,18 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
             'temperature': temperature, 'offset': offset, 'calibration': calibration, **metrics}
 
 
-def _calibration_method(cfg: TrainConfig, init: Any, guard_data: Any, data: Any) -> str:
-    """'guarded' or 'refit' (``cfg.calibration``'s 'auto' resolved), checked against the
-    initial model and the guard data."""
+def _calibration_method(cfg: TrainConfig, init: Any, anchor_data: Any, data: Any) -> str:
+    """'anchored' or 'refit' (``cfg.calibration``'s 'auto' resolved), checked against the
+    initial model and the anchor data."""
     calibration = cfg.calibration if cfg.calibration != 'auto' else \
-        ('guarded' if init is not None else 'refit')
-    if calibration == 'guarded' and init is None:
-        raise ConfigError("calibration 'guarded' keeps the initial model's calibration: give "
+        ('anchored' if init is not None else 'refit')
+    if calibration == 'anchored' and init is None:
+        raise ConfigError("calibration 'anchored' keeps the initial model's calibration: give "
                           'an initial model (--init)')
-    if guard_data is not None and calibration != 'guarded':
-        raise ConfigError('guard data serve the guarded calibration only: fine-tune with '
-                          '--init and the guarded calibration')
-    check_held_out(guard_data, data)
+    if anchor_data is not None and calibration != 'anchored':
+        raise ConfigError('anchor data serve the anchored calibration only: fine-tune with '
+                          '--init and the anchored calibration')
+    check_held_out(anchor_data, data)
     return calibration
 
 
@@ -396,23 +396,23 @@ def _samples(d: _Data, cfg: TrainConfig, device: torch.device, progress: bool
 
 
 def _calibrate(calibration: str, model: AnyNet, src: AnyNet | None, init: Any,
-               logits: np.ndarray, d: _Data, guard: GuardSets | None, names: list[str],
+               logits: np.ndarray, d: _Data, anchors: AnchorSets | None, names: list[str],
                device: torch.device, eval_precision: str, progress: bool
                ) -> tuple[float, float, dict[str, Any]]:
     """The final model's temperature and offset, and what the model file records of them."""
     y_val = d.val_labels.numpy()
-    if calibration != 'guarded':
+    if calibration != 'anchored':
         return (fit_temperature(logits, y_val) if len(logits) else 1.0), 0.0, {}
     assert src is not None
     init_net = src.to(device)
     init_logits, _, _ = evaluate_logits(init_net, d.val_inputs, d.val_labels, eval_precision)
     set_logits = None
-    if guard is not None:  # the same two nets on the guard sets
-        set_logits = (evaluate_logits(model, guard.inputs, guard.labels, eval_precision)[0],
-                      evaluate_logits(init_net, guard.inputs, guard.labels, eval_precision)[0])
+    if anchors is not None:  # the same two nets on the anchor sets
+        set_logits = (evaluate_logits(model, anchors.inputs, anchors.labels, eval_precision)[0],
+                      evaluate_logits(init_net, anchors.inputs, anchors.labels, eval_precision)[0])
     temperature = float(src.temperature)
-    offset, record = guard_offset(logits, init_logits, y_val, d.val_groups, names, temperature,
-                                  float(src.offset), guard, set_logits)
+    offset, record = anchor_offset(logits, init_logits, y_val, d.val_groups, names, temperature,
+                                  float(src.offset), anchors, set_logits)
     if progress:
         lowest = min(record['groups'], key=lambda e: e['offset_limit'], default=None)
         by = f' (set by {lowest["source"]})' if lowest is not None and offset < src.offset \
@@ -420,7 +420,7 @@ def _calibrate(calibration: str, model: AnyNet, src: AnyNet | None, init: Any,
         print(f'train: calibration of {init} kept (T {temperature:.3f}), offset '
               f'{src.offset:+.3f} -> {offset:+.3f}{by} so that no more reference obstacles '
               'pass at P(safe) >= 0.5 or 0.9 than under it', file=sys.stderr)
-    return temperature, offset, {'calibration': {'method': 'guarded', 'initial_model': str(init),
+    return temperature, offset, {'calibration': {'method': 'anchored', 'initial_model': str(init),
                                                  **record}}
 
 
