@@ -1,7 +1,8 @@
 """An ensemble of safety CNNs judged as one net: the mean of its members' logits.
 
 The idea: members trained on different subsets of the families (the fold models of
-:func:`landing_zone.tools.evaluate.lofo.family_folds`) disagree where a tile looks like a family some of
+:func:`landing_zone.tools.evaluate.lofo.family_folds`) disagree where a tile looks like a family
+some of
 them never saw, and their mean logit is then less sure there. Measured, it was not enough to
 ship one: members without a third of the families rank worse than one model trained on all of
 them (models/MODEL_CARD.md, "Measured, not shipped (2026-12-02)").

@@ -1,1 +1,2 @@
-"""What runs beside the pipeline on the robot, ROS-free: stamp-ordered input, the live receive path, snapshots."""
+"""What runs beside the pipeline on the robot, ROS-free: stamp-ordered input, the live receive
+path, snapshots."""

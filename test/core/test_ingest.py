@@ -12,7 +12,7 @@ from landing_zone.io.bags import RawBag
 from landing_zone.errors import ConfigError
 from landing_zone.config import LiveConfig
 from landing_zone.runtime.ingest import (PLACE_RETURNS, LivePipeline, ReceiveQueue,
-                                           SequenceGaps, warm_up)
+                                         SequenceGaps, warm_up)
 from landing_zone.replay import replay
 from landing_zone.config import StreamConfig
 from landing_zone.runtime.stream import Stream

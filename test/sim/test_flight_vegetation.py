@@ -21,7 +21,7 @@ from landing_zone.tools.sim.flight import simulate_flight
 from landing_zone.tools.sim.flight_config import SCAN, VEGETATION, FlightConfig, flight_config
 from landing_zone.tools.sim.flight_path import quaternion
 from landing_zone.tools.sim.grass import (GrassConfig, VegetationConfig, bush_mesh, clumped_bases,
-                                    grass_mesh, place_bushes, vegetation_blades)
+                                          grass_mesh, place_bushes, vegetation_blades)
 from landing_zone.tools.sim.scene import PatchConfig, simulate_patch
 from landing_zone.tools.sim.sensor import ScanPattern, SensorConfig, mount_frame
 from landing_zone.tools.sim.terrain import Terrain, TerrainConfig

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.tools.evaluate.lofo import (family_figures, family_folds, family_report, hold_out,
-                                     markdown_families, parse_hold_out, scene_families)
+from landing_zone.tools.evaluate.lofo import (family_figures, family_folds, family_report,
+                                              hold_out, markdown_families, parse_hold_out,
+                                              scene_families)
 from landing_zone.tools.sim.dataset import simulate_dataset
 from landing_zone.tools.sim.shards import SceneDataset
 from landing_zone.tools.sim.families import TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
-from landing_zone.tools.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of, scene_plan,
-                                     select_scenes, synth3_train_families)
+from landing_zone.tools.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of,
+                                           scene_plan, select_scenes, synth3_train_families)
 from landing_zone.tools.sim.vegetation import SYNTH3_VEGETATION
 
 

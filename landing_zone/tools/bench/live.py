@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from landing_zone.tools.bench.livenode import (NodeProcess, Observer, bench_domain, dds_env,
-                                         load_line)
+                                               load_line)
 
 # (returns per cloud, clouds per second): 0.1 to 2 M returns/s
 RATES = [(10_000, 10), (20_000, 10), (15_000, 20), (25_000, 20), (35_000, 20), (50_000, 20),

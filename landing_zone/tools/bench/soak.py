@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from landing_zone.tools.bench.livenode import (NodeProcess, Observer, bench_domain, dds_env,
-                                         load_line)
+                                               load_line)
 
 SAMPLE = 5.0  # seconds between samples
 WARM = 60.0  # seconds left out of the slopes (the first pass over the site fills the map)

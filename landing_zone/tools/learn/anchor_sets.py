@@ -65,7 +65,7 @@ def check_held_out(anchor_data: Any, data: Any) -> None:
 
 
 def load_anchor_sets(anchor_data: Any, map_cfg: MapConfig, tile_cfg: TileConfig, workers: int,
-                    progress: bool) -> AnchorSets:
+                     progress: bool) -> AnchorSets:
     """Load and voxelize every train-split scene of each anchor set (one group per set)."""
     inputs, labels, groups, names = [], [], [], []
     for k, one in enumerate(_sets(anchor_data)):
@@ -85,12 +85,13 @@ def load_anchor_sets(anchor_data: Any, map_cfg: MapConfig, tile_cfg: TileConfig,
 
 
 def anchor_offset(new_logits: np.ndarray, init_logits: np.ndarray, labels: np.ndarray,
-                 groups: np.ndarray, names: list[str], temperature: float, offset: float,
-                 sets: AnchorSets | None = None,
-                 set_logits: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> tuple[float, dict[str, Any]]:
+                  groups: np.ndarray, names: list[str], temperature: float, offset: float,
+                  sets: AnchorSets | None = None,
+                  set_logits: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> tuple[float, dict[str, Any]]:
     """The anchored offset over the validation tiles of each training source (``groups`` number
-    them, ``names`` name them: :func:`~landing_zone.tools.learn.scenes.part_names`) and, when given,
+    them, ``names`` name them: :func:`~landing_zone.tools.learn.scenes.part_names`) and, when
+    given,
     the anchor sets' tiles (``set_logits``: the fine-tuned and the initial net's logits on
     ``sets.inputs``), each group named by its source.
 
@@ -109,7 +110,7 @@ def anchor_offset(new_logits: np.ndarray, init_logits: np.ndarray, labels: np.nd
         names = names + sets.names
         fitted_on += ', and every obstacle scene of each anchor set (never trained on)'
     b, report = anchored_offset(new_logits, init_logits, labels, temperature, offset,
-                               groups=groups)
+                                groups=groups)
     for entry in report['groups']:
         entry['source'] = names[entry['group']]
     return b, {'fitted_on': fitted_on, **report}

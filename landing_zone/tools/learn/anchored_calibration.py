@@ -5,7 +5,8 @@ scratch, wrong for one fine-tuned from a model whose calibration was fitted on f
 saw (``landing-zone calibrate``): the refit keeps P(safe) honest on the training families only
 and drops what the initial model knew about unfamiliar ones, so more obstacles of unseen
 families pass. So a fine-tuned model keeps the initial model's ``T`` and ``b``, anchored: ``b``
-is lowered (never raised) until, on reference obstacle tiles (the fine-tuning's validation scenes with an obstacle, of
+is lowered (never raised) until, on reference obstacle tiles (the fine-tuning's validation scenes
+with an obstacle, of
 every training source apart), it passes no more at each threshold (0.5 and 0.9) than the initial
 model did. Lowering ``b`` keeps the ranking (no AUC changes) and only ever makes tiles less safe.
 
@@ -32,8 +33,8 @@ def passes(logits, temperature: float, offset: float, threshold: float) -> int:
 
 
 def anchored_offset(new_logits, init_logits, labels, temperature: float, offset: float,
-                   groups=None, thresholds: Sequence[float] = THRESHOLDS
-                   ) -> tuple[float, dict[str, Any]]:
+                    groups=None, thresholds: Sequence[float] = THRESHOLDS
+                    ) -> tuple[float, dict[str, Any]]:
     """The largest offset ``b' <= offset`` under which the fine-tuned net, at temperature ``T``,
     passes no more reference obstacle tiles at each threshold, in each group, than the initial
     net does at its own ``(T, offset)``.

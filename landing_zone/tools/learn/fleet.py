@@ -1,8 +1,10 @@
 """``landing-zone train-fleet``: many trainings at once, here or on a Ray cluster.
 
 The leave-one-family-out protocol trains one model per held-out family
-(:mod:`landing_zone.tools.evaluate.lofo`), and an ensemble multiplies that by its members. Each of those
-trainings is one task (:mod:`landing_zone.tools.engines`): :func:`landing_zone.tools.learn.train.train`
+(:mod:`landing_zone.tools.evaluate.lofo`), and an ensemble multiplies that by its members. Each of
+those
+trainings is one task (:mod:`landing_zone.tools.engines`):
+:func:`landing_zone.tools.learn.train.train`
 with its own ``--hold-out`` and seed, writing its model, its training state (for resume) and
 its log into ``out_dir``. On a cluster ``out_dir`` is a path every worker mounts (NFS, a
 cluster file system): a task retried after its worker died resumes from the training state

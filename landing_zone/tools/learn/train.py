@@ -113,7 +113,8 @@ class TrainConfig:
     leniency_penalty: float = 1.0
     # 'refit': the temperature fitted on the validation scenes; 'anchored': the initial model's
     # T and b, b lowered until no more validation obstacles pass at 0.5 or 0.9 than under the
-    # initial model (landing_zone.tools.learn.anchored_calibration; needs an initial model); 'auto':
+    # initial model (landing_zone.tools.learn.anchored_calibration; needs an initial model);
+    # 'auto':
     # anchored with an initial model, else refit
     calibration: str = 'auto'
 
@@ -412,7 +413,7 @@ def _calibrate(calibration: str, model: AnyNet, src: AnyNet | None, init: Any,
                       evaluate_logits(init_net, anchors.inputs, anchors.labels, eval_precision)[0])
     temperature = float(src.temperature)
     offset, record = anchor_offset(logits, init_logits, y_val, d.val_groups, names, temperature,
-                                  float(src.offset), anchors, set_logits)
+                                   float(src.offset), anchors, set_logits)
     if progress:
         lowest = min(record['groups'], key=lambda e: e['offset_limit'], default=None)
         by = f' (set by {lowest["source"]})' if lowest is not None and offset < src.offset \

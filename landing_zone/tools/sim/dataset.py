@@ -30,9 +30,9 @@ import numpy as np
 from landing_zone.tools.engines import check_engine, run_tasks
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.shards import (FORMAT_VERSION, prepare_output, shard_arrays,
-                                     shard_complete, shard_name, write_json, write_npz)
+                                           shard_complete, shard_name, write_json, write_npz)
 from landing_zone.tools.sim.sweeps import (TEST_FRACTION, generate_scene, get_sweep, scene_plan,
-                                     select_scenes)
+                                           select_scenes)
 
 __all__ = ['simulate_dataset', 'progress_bar']
 

@@ -2,7 +2,8 @@
 
 The hover scan of :mod:`landing_zone.tools.sim.sensor` is the paper's nodding line scanner on a
 hovering vehicle. The scanners a user flies are mostly mounted still and swept along by the
-vehicle's motion (what :func:`landing_zone.tools.sim.sensor.path_scan` simulates for whole flights): a
+vehicle's motion (what :func:`landing_zone.tools.sim.sensor.path_scan` simulates for whole
+flights): a
 line scanner at a fixed tilt (pushbroom), a spinning multi-beam, a rosette, an elliptical
 (Palmer) scanner. :func:`flyover_scan` scans one patch that way:
 

@@ -23,13 +23,15 @@ context), within ``region`` if one is given; or, for a flight without labels, th
 **A patch** keeps what a synth scene keeps: every ray that passes through the tile's padded
 column (the tile and 0.3 m around it, from 1 m below to 2 m above its ground; see
 :class:`~landing_zone.tools.sim.scene.PatchConfig`), found for all patches at once by a compiled
-ray/box pass over the flight. Its ground is :func:`landing_zone.tools.sim.placement.ground_height` at the
+ray/box pass over the flight. Its ground is :func:`landing_zone.tools.sim.placement.ground_height`
+at the
 tile centre; the patch frame puts the tile centre at (0, 0) and that ground at z = 0. Half the
 patches (a seeded draw) get one obstacle, placed as synth2 places them
 (:func:`~landing_zone.tools.sim.scene.simulate_patch`): half of those wholly inside the tile, half
 straddling its edge; its model drawn as synth2 draws them (rocks, tires, cinder blocks) from
 the split's obstacle group; standing on the ground estimated around it, sunk by
-``landing_zone.tools.sim.insert.SINK`` (and the model's embedding). The altered returns get hit class 2
+``landing_zone.tools.sim.insert.SINK`` (and the model's embedding). The altered returns get hit
+class 2
 (obstacle); the others keep the flight's ``label`` field (0 ground, 1 grass, 2 obstacle), or
 255 (unknown) for flights without one.
 
@@ -379,8 +381,8 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
 
     from landing_zone.tools.sim.recorded import read_flight
     from landing_zone.tools.sim.dataset import progress_bar
-    from landing_zone.tools.sim.shards import (shard_arrays, shard_complete, shard_name, write_json,
-                                         write_npz, prepare_output)
+    from landing_zone.tools.sim.shards import (prepare_output, shard_arrays, shard_complete,
+                                               shard_name, write_json, write_npz)
 
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]

@@ -2,7 +2,8 @@
 
 synth1 and synth2 are the paper's Cartesian sweeps over one obstacle library, one kind of grass,
 near-flat ground and one scanner; synth3 draws every patch from the families of
-:mod:`landing_zone.tools.sim.families` (obstacles), :mod:`landing_zone.tools.sim.vegetation` (ground cover),
+:mod:`landing_zone.tools.sim.families` (obstacles), :mod:`landing_zone.tools.sim.vegetation`
+(ground cover),
 :data:`TERRAIN_FAMILIES` and :data:`SENSOR_FAMILIES` (the nodding line scanner hovering as in
 synth2, or a pass of a pushbroom line, spinning multi-beam, rosette or elliptical scanner,
 :mod:`landing_zone.tools.sim.flyover`), at 1000-5000 returns/m^2 from 4-20 m up (spinning scanners
@@ -17,7 +18,8 @@ obstacle tells them apart), and dropping a family drops whole pairs. In three of
 blades grow to 60-110 % of the obstacle's visible height (``hide``), in both scenes of the pair.
 
 **The split.** A hash of the pair puts a quarter of the pairs into the test split. Train pairs
-draw their obstacle from the train families (:data:`~landing_zone.tools.sim.families.TRAIN_FAMILIES`
+draw their obstacle from the train families
+(:data:`~landing_zone.tools.sim.families.TRAIN_FAMILIES`
 among the dataset's) and from the train instances (index = pair number); test pairs from every
 family and from its test instances (index = ``TEST_BASE`` + pair number). So the test split
 holds families never trained on and, for the others, instances whose seed streams training never
@@ -44,7 +46,8 @@ every seed, as other ``families`` are.
 
 **Leave one family out.** Every scene's ``params`` name its ``family`` (obstacle; the safe twin
 names its pair's), ``vegetation``, ``terrain`` and ``sensor``, and ``meta.json`` lists them per
-shard, so a trainer can drop a family without reading a shard (:mod:`landing_zone.tools.evaluate.lofo`,
+shard, so a trainer can drop a family without reading a shard
+(:mod:`landing_zone.tools.evaluate.lofo`,
 ``landing-zone train --hold-out obstacle:FAMILY``) and ``landing-zone evaluate --by-family``
 reports each family of the test split.
 

@@ -1,7 +1,8 @@
 """Vegetation families for dataset patches: how the ground of a tile is covered.
 
 Each family draws its parameters from a scene's plan (:func:`draw_vegetation`) and builds its
-meshes with the blades and shrubs of :mod:`landing_zone.tools.sim.grass` (:func:`build_vegetation`);
+meshes with the blades and shrubs of :mod:`landing_zone.tools.sim.grass`
+(:func:`build_vegetation`);
 nothing here is a second grass model. All of them are safe ground: the label of a patch is the
 presence of an obstacle only.
 
@@ -21,7 +22,8 @@ presence of an obstacle only.
               own density, height (3-42 cm), width, lean, curvature and clumping (none, or
               clumps of 5-400 blades 1.5-25 cm in radius: tufts to porous bunches half a metre
               across), sometimes over a flattened mat; no leaves (see below)
-``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.tools.sim.leafy`): one or two
+``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.tools.sim.leafy`): one or
+two
               kinds a patch, 2-40 plants per m^2, 5-40 cm, one to eight thin stems each with
               2-12 flat leaves of 2-10 cm along them or lying in a rosette at the foot, over
               sparse to dense short grass; no canopy, nothing woody (see below)
@@ -60,10 +62,10 @@ import numpy as np
 
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.leafy import (CrownForm, ForbForm, crown_mesh, crown_top, forb_mesh,
-                                    forb_top)
+                                          forb_top)
 from landing_zone.tools.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
-                                    bush_mesh, place_bushes, points_in_polygon, scatter,
-                                    vegetation_blades)
+                                          bush_mesh, place_bushes, points_in_polygon, scatter,
+                                          vegetation_blades)
 from landing_zone.tools.sim.mesh import GROUND, Mesh
 from landing_zone.tools.sim.terrain import Terrain
 
