@@ -184,8 +184,7 @@ def grass_flight(tmp_path_factory):
     from landing_zone.tools.sim.insert import insert_obstacles
     from landing_zone.tools.sim.placement import SINK, ground_height
     from landing_zone.tools.sim.recorded import read_flight
-    from landing_zone.tools.sim.flight import simulate_flight
-    from landing_zone.tools.sim.flight_config import flight_config
+    from landing_zone.tools.sim.flight import flight_config, simulate_flight
     from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel
     from landing_zone.tools.sim.shapes import box_parts, normalise
 

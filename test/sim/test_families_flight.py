@@ -14,8 +14,7 @@ import pytest
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.insert import insert_obstacles
 from landing_zone.tools.sim.families import FAMILIES, TEST_BASE, TEST_FAMILIES
-from landing_zone.tools.sim.flight import simulate_flight
-from landing_zone.tools.sim.flight_config import flight_config
+from landing_zone.tools.sim.flight import flight_config, simulate_flight
 from landing_zone.tools.sim.library import get_model
 
 REPO = Path(__file__).resolve().parents[2]

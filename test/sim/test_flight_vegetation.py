@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import SimulationError
-from landing_zone.tools.sim.flight import simulate_flight
-from landing_zone.tools.sim.flight_config import SCAN, VEGETATION, FlightConfig, flight_config
+from landing_zone.tools.sim.flight import flight_config, simulate_flight
+from landing_zone.tools.sim.flight_settings import SCAN, VEGETATION, FlightConfig
 from landing_zone.tools.sim.flight_path import quaternion
 from landing_zone.tools.sim.grass import (GrassConfig, VegetationConfig, bush_mesh, clumped_bases,
                                           grass_mesh, place_bushes, vegetation_blades)

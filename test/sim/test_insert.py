@@ -21,8 +21,7 @@ from landing_zone.tools.sim.alteration import ObstacleScene, alter_returns, segm
 from landing_zone.tools.sim.insert import insert_obstacles
 from landing_zone.tools.sim.placement import ground_height
 from landing_zone.tools.sim.recorded import read_flight
-from landing_zone.tools.sim.flight import simulate_flight
-from landing_zone.tools.sim.flight_config import flight_config
+from landing_zone.tools.sim.flight import flight_config, simulate_flight
 from landing_zone.tools.sim.library import get_model
 from landing_zone.tools.sim.obstacles import Obstacle
 from msg_adapters import MessageTypes, make_header, stamp_to_ns

@@ -10,8 +10,7 @@ import pytest
 from landing_zone.tools import cli
 from landing_zone.tools.sim.recorded import read_flight
 from landing_zone.tools.sim.shards import SceneDataset
-from landing_zone.tools.sim.flight import simulate_flight
-from landing_zone.tools.sim.flight_config import flight_config
+from landing_zone.tools.sim.flight import flight_config, simulate_flight
 from landing_zone.tools.sim.hybrid import column_rays, simulate_hybrid
 from landing_zone.tools.sim.library import get_model, models
 from landing_zone.tools.sim.obstacles import Obstacle

@@ -148,8 +148,7 @@ def test_without_ray_engine_ray_says_how_to_get_it(tmp_path):
 
 @pytest.fixture(scope='module')
 def flights(tmp_path_factory):
-    from landing_zone.tools.sim.flight import simulate_flight
-    from landing_zone.tools.sim.flight_config import flight_config
+    from landing_zone.tools.sim.flight import flight_config, simulate_flight
 
     root = tmp_path_factory.mktemp('flights')
     bags = []

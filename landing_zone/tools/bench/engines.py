@@ -43,8 +43,7 @@ def run(batches: int = 30, seed: int = 0) -> dict:
     from landing_zone.tools.engines import require_ray
     from landing_zone.tools.evaluate.flights import evaluate_flights
     from landing_zone.tools.sim.dataset import simulate_dataset
-    from landing_zone.tools.sim.flight import simulate_flight
-    from landing_zone.tools.sim.flight_config import flight_config
+    from landing_zone.tools.sim.flight import flight_config, simulate_flight
 
     try:
         ray = require_ray()

@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -46,16 +46,77 @@ import numpy as np
 
 from landing_zone.errors import BagError, SimulationError
 from landing_zone.io.labels import labels_path_for, write_labels
-from landing_zone.tools.sim.flight_config import FlightConfig
+from landing_zone.tools.sim.flight_settings import SCAN, VEGETATION, FlightConfig
+from landing_zone.tools.sim.grass import VegetationConfig
 from landing_zone.tools.sim.flight_path import Lawnmower, density_constant, \
     footprint_density_constant, pass_offsets, pattern_footprint, quaternion
 from landing_zone.tools.sim.flight_site import build_site, tile_labels
-from landing_zone.tools.sim.sensor import BrownianWalk, Returns, path_scan
+from landing_zone.tools.sim.sensor import BrownianWalk, Returns, ScanPattern, SensorConfig, \
+    path_scan
+from landing_zone.tools.sim.vegetation import VEGETATION_FAMILIES
 
-__all__ = ['FlightResult', 'simulate_flight', 'START_TIME_NS']
+__all__ = ['FlightResult', 'simulate_flight', 'flight_config', 'START_TIME_NS']
 
 START_TIME_NS = 1_735_689_600 * 1_000_000_000  # 2025-01-01T00:00:00Z: stamps of every flight
 _TURN_POSE_RATE = 50.0  # [Hz] poses while turning between passes
+
+
+def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
+                  density: float | None = None, **overrides: Any) -> FlightConfig:
+    """A :class:`FlightConfig` from a vegetation and a scan-pattern preset, then overrides.
+
+    Args:
+        vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of
+            grass) or a vegetation family (:data:`VEGETATION_FAMILIES`: synth3's six and
+            the meadow, forb and canopy priors).
+        scan_pattern: one of :data:`SCAN`.
+        density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
+        **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,
+            :class:`ScanPattern` or :class:`SensorConfig`, or the terrain's ``amplitude`` and
+            ``wavelength``; a value of None leaves the preset's (or the default) value.
+
+    Returns:
+        The configuration (not yet validated: :func:`simulate_flight` does that).
+
+    Raises:
+        SimulationError: an unknown preset or field.
+    """
+    family = None
+    if vegetation in VEGETATION_FAMILIES and vegetation not in VEGETATION:
+        family, vegetation = vegetation, 'default'
+    if vegetation not in VEGETATION:
+        raise SimulationError(f'unknown vegetation {vegetation!r}; choose from '
+                              f'{", ".join(VEGETATION)} or a family: '
+                              f'{", ".join(VEGETATION_FAMILIES)}')
+    if scan_pattern not in SCAN:
+        raise SimulationError(f'unknown scan pattern {scan_pattern!r}; choose from '
+                              f'{", ".join(SCAN)}')
+    flight_fields = {f.name for f in fields(FlightConfig)} - {'vegetation', 'scan'}
+    veg_fields = {f.name for f in fields(VegetationConfig)} - {'preset'}
+    scan_fields = {f.name for f in fields(ScanPattern)} - {'kind'}
+    sensor_fields = {f.name for f in fields(SensorConfig)}
+    terrain_fields = {'amplitude', 'wavelength'}  # roughness of the ground
+    settings = {**VEGETATION[vegetation], **SCAN[scan_pattern],
+                **{k: v for k, v in overrides.items() if v is not None}}
+    if density is not None:
+        settings['target_density'] = density
+    if family is not None:
+        settings['vegetation_family'] = family
+    unknown = sorted(set(settings) - flight_fields - veg_fields - scan_fields - sensor_fields
+                     - terrain_fields)
+    if unknown:
+        raise SimulationError(f'unknown flight setting {unknown[0]!r}')
+    cfg = FlightConfig(
+        vegetation=VegetationConfig(preset=vegetation, **{k: v for k, v in settings.items()
+                                                          if k in veg_fields}),
+        scan=ScanPattern(kind=scan_pattern, **{k: v for k, v in settings.items()
+                                               if k in scan_fields}),
+        **{k: v for k, v in settings.items() if k in flight_fields})
+    sensor = {k: v for k, v in settings.items() if k in sensor_fields}
+    terrain = {k: v for k, v in settings.items() if k in terrain_fields}
+    if terrain:
+        cfg = replace(cfg, terrain=replace(cfg.terrain, **terrain))
+    return replace(cfg, sensor=replace(cfg.sensor, **sensor)) if sensor else cfg
 
 
 @dataclass

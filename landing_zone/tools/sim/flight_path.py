@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from landing_zone.errors import SimulationError
-from landing_zone.tools.sim.flight_config import FlightConfig
+from landing_zone.tools.sim.flight_settings import FlightConfig
 from landing_zone.tools.sim.sensor import mount_frame
 
 __all__ = ['pass_offsets', 'Footprint', 'pattern_footprint', 'footprint_density_constant',

@@ -14,7 +14,7 @@ import numpy as np
 
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.families import draw_instance, keep_visible, parse_families
-from landing_zone.tools.sim.flight_config import MIN_SEPARATION, FlightConfig
+from landing_zone.tools.sim.flight_settings import MIN_SEPARATION, FlightConfig
 from landing_zone.tools.sim.grass import Bush, GrassConfig, _poisson_blades, bush_mesh, \
     grass_mesh, place_bushes, vegetation_blades
 from landing_zone.tools.sim.library import models

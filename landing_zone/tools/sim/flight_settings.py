@@ -1,14 +1,16 @@
 """What a simulated flight is: its site, vegetation, obstacles, scanner and path, as one config.
 
-:class:`FlightConfig` holds every parameter of a flight (:func:`flight_config` builds one from
-the named presets of vegetation and scan pattern); :mod:`landing_zone.tools.sim.flight_site`
+:class:`FlightConfig` holds every parameter of a flight
+(:func:`landing_zone.tools.sim.flight.flight_config` builds one from the named presets of
+vegetation and scan pattern, :data:`VEGETATION` and :data:`SCAN`);
+:mod:`landing_zone.tools.sim.flight_site`
 builds its world, :mod:`landing_zone.tools.sim.flight_path` its path and
 :func:`landing_zone.tools.sim.flight.simulate_flight` flies it.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from landing_zone.errors import SimulationError
@@ -19,7 +21,7 @@ from landing_zone.tools.sim.sensor import SCAN_PATTERNS, ScanPattern, SensorConf
 from landing_zone.tools.sim.terrain import TerrainConfig
 from landing_zone.tools.sim.vegetation import VEGETATION_FAMILIES
 
-__all__ = ['FlightConfig', 'flight_config', 'VEGETATION', 'SCAN', 'MIN_SEPARATION']
+__all__ = ['FlightConfig', 'VEGETATION', 'SCAN', 'MIN_SEPARATION']
 
 MIN_SEPARATION = 1.5  # [m] between obstacle centres
 
@@ -152,61 +154,3 @@ class FlightConfig:
         out['vegetation'] = self.vegetation.to_dict()
         out['scan'] = self.scan.to_dict()
         return out
-
-
-def flight_config(vegetation: str = 'default', scan_pattern: str = 'line',
-                  density: float | None = None, **overrides: Any) -> FlightConfig:
-    """A :class:`FlightConfig` from a vegetation and a scan-pattern preset, then overrides.
-
-    Args:
-        vegetation: one of :data:`VEGETATION` (``default`` is the training sets' kind of
-            grass) or a vegetation family (:data:`VEGETATION_FAMILIES`: synth3's six and
-            the meadow, forb and canopy priors).
-        scan_pattern: one of :data:`SCAN`.
-        density: target returns per m^2 (``SensorConfig.target_density``); None: the default.
-        **overrides: fields of :class:`FlightConfig`, :class:`VegetationConfig`,
-            :class:`ScanPattern` or :class:`SensorConfig`, or the terrain's ``amplitude`` and
-            ``wavelength``; a value of None leaves the preset's (or the default) value.
-
-    Returns:
-        The configuration (not yet validated: :func:`simulate_flight` does that).
-
-    Raises:
-        SimulationError: an unknown preset or field.
-    """
-    family = None
-    if vegetation in VEGETATION_FAMILIES and vegetation not in VEGETATION:
-        family, vegetation = vegetation, 'default'
-    if vegetation not in VEGETATION:
-        raise SimulationError(f'unknown vegetation {vegetation!r}; choose from '
-                              f'{", ".join(VEGETATION)} or a family: '
-                              f'{", ".join(VEGETATION_FAMILIES)}')
-    if scan_pattern not in SCAN:
-        raise SimulationError(f'unknown scan pattern {scan_pattern!r}; choose from '
-                              f'{", ".join(SCAN)}')
-    flight_fields = {f.name for f in fields(FlightConfig)} - {'vegetation', 'scan'}
-    veg_fields = {f.name for f in fields(VegetationConfig)} - {'preset'}
-    scan_fields = {f.name for f in fields(ScanPattern)} - {'kind'}
-    sensor_fields = {f.name for f in fields(SensorConfig)}
-    terrain_fields = {'amplitude', 'wavelength'}  # roughness of the ground
-    settings = {**VEGETATION[vegetation], **SCAN[scan_pattern],
-                **{k: v for k, v in overrides.items() if v is not None}}
-    if density is not None:
-        settings['target_density'] = density
-    if family is not None:
-        settings['vegetation_family'] = family
-    unknown = sorted(set(settings) - flight_fields - veg_fields - scan_fields - sensor_fields
-                     - terrain_fields)
-    if unknown:
-        raise SimulationError(f'unknown flight setting {unknown[0]!r}')
-    cfg = FlightConfig(
-        vegetation=VegetationConfig(preset=vegetation, **{k: v for k, v in settings.items()
-                                                          if k in veg_fields}),
-        scan=ScanPattern(kind=scan_pattern, **{k: v for k, v in settings.items()
-                                               if k in scan_fields}),
-        **{k: v for k, v in settings.items() if k in flight_fields})
-    sensor = {k: v for k, v in settings.items() if k in sensor_fields}
-    terrain = {k: v for k, v in settings.items() if k in terrain_fields}
-    if terrain:
-        cfg = replace(cfg, terrain=replace(cfg.terrain, **terrain))
-    return replace(cfg, sensor=replace(cfg.sensor, **sensor)) if sensor else cfg
