@@ -74,6 +74,127 @@ def _carry(hot, cold_at, idx, cdir, pool, used, part):  # type: ignore[no-untype
     # else: 65535 reached, the count saturates
 
 
+@nb.njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _axis(g0, g1, lo, hi):  # type: ignore[no-untyped-def]
+    """An axis of the walk in the box ``[lo, hi)``: its step direction, the plane offset of the
+    next event (1 up, 0 down) and its last cell (the return's cell or the box's face cell)."""
+    if g1 > g0:
+        return 1, 1, min(g1, hi - 1)
+    return -1, 0, max(g1, lo)
+
+
+@nb.njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _tie_moves(tx, ty, tz, tm, stx, sty, stz):  # type: ignore[no-untyped-def]
+    """Which axes step at a tie at ``tm``: up-steps at t happen at t, down-steps just after
+    it, so where some tied axis steps up only those do."""
+    mvx = tx == tm
+    mvy = ty == tm
+    mvz = tz == tm
+    if (mvx and stx > 0) or (mvy and sty > 0) or (mvz and stz > 0):
+        return mvx and stx > 0, mvy and sty > 0, mvz and stz > 0
+    return mvx, mvy, mvz
+
+
+@nb.njit(cache=True, nogil=True, error_model='numpy', inline='always')
+def _walk(  # type: ignore[no-untyped-def]
+        passes, cdir, pool, used, part, tabs, wlo, ox, oy, oz, dx, dy, dz, cx, cy, cz, g1x,
+        g1y, g1z, stx, sty, stz, upx, upy, upz, lastx, lasty, lastz, nv):
+    """Pass every cell of one ray from (cx, cy, cz) to its return's cell or the box's face,
+    in the order of its plane crossings (``tabs``: the axes' offset tables, ``wlo`` their
+    first index). Returns whether it reached the return's cell, that cell's storage index, the
+    last cell's x and y, and the voxel updates counted. (At most 30 arguments: past that
+    Python passes them as a tuple, which numba does not inline.)"""
+    tabx, taby, tabz = tabs
+    wx0 = wlo[0]
+    wy0 = wlo[1]
+    wz0 = wlo[2]
+    # the next event's parameter per axis (inf once the axis has reached the return's cell)
+    tx = (cx + upx - ox) / dx if cx != g1x else INF
+    ty = (cy + upy - oy) / dy if cy != g1y else INF
+    tz = (cz + upz - oz) / dz if cz != g1z else INF
+    offx = tabx[cx - wx0]
+    offy = taby[cy - wy0]
+    offz = tabz[cz - wz0]
+    reached = False  # the walk arrived at the return's cell (inside this box)
+    while True:
+        idx = offx + offy + offz
+        # next event: the smallest (t, class); a strict minimum is the common case and
+        # each axis gets its own block so that one unpredictable branch decides it. An
+        # axis at its last cell is either done (t = inf, never chosen) or about to leave.
+        # (The blocks are alike on purpose: one step indexed by axis keeps the state out of
+        # the registers.)
+        if tx < ty and tx < tz:
+            v = passes[idx]
+            if v != 255:
+                passes[idx] = v + 1
+            else:
+                _carry(passes, 64, idx, cdir, pool, used, part)
+            nv += 1
+            if cx == lastx:
+                break
+            cx += stx
+            offx = tabx[cx - wx0]
+            tx = (cx + upx - ox) / dx
+            if cx == g1x:
+                tx = INF
+        elif ty < tz and ty < tx:
+            v = passes[idx]
+            if v != 255:
+                passes[idx] = v + 1
+            else:
+                _carry(passes, 64, idx, cdir, pool, used, part)
+            nv += 1
+            if cy == lasty:
+                break
+            cy += sty
+            offy = taby[cy - wy0]
+            ty = (cy + upy - oy) / dy
+            if cy == g1y:
+                ty = INF
+        elif tz < tx and tz < ty:
+            v = passes[idx]
+            if v != 255:
+                passes[idx] = v + 1
+            else:
+                _carry(passes, 64, idx, cdir, pool, used, part)
+            nv += 1
+            if cz == lastz:
+                break
+            cz += stz
+            offz = tabz[cz - wz0]
+            tz = (cz + upz - oz) / dz
+            if cz == g1z:
+                tz = INF
+        else:
+            # a tie (edge or corner) or the end of the ray
+            tm = min(tx, min(ty, tz))
+            if tm == INF:
+                reached = True
+                break
+            mvx, mvy, mvz = _tie_moves(tx, ty, tz, tm, stx, sty, stz)
+            v = passes[idx]
+            if v != 255:
+                passes[idx] = v + 1
+            else:
+                _carry(passes, 64, idx, cdir, pool, used, part)
+            nv += 1
+            if (mvx and cx == lastx) or (mvy and cy == lasty) or (mvz and cz == lastz):
+                break  # the next cell is outside the box
+            if mvx:
+                cx += stx
+                offx = tabx[cx - wx0]
+                tx = (cx + upx - ox) / dx if cx != g1x else INF
+            if mvy:
+                cy += sty
+                offy = taby[cy - wy0]
+                ty = (cy + upy - oy) / dy if cy != g1y else INF
+            if mvz:
+                cz += stz
+                offz = tabz[cz - wz0]
+                tz = (cz + upz - oz) / dz if cz != g1z else INF
+    return reached, offx + offy + offz, cx, cy, nv
+
+
 @nb.njit(cache=True, nogil=True, error_model='numpy')
 def _trace_part(  # type: ignore[no-untyped-def]
         part, uo, up, order, nvalid, blo, bhi, yint, wlo, tabx, taby, tabz, hits,
@@ -83,15 +204,12 @@ def _trace_part(  # type: ignore[no-untyped-def]
     ``tabx[g - wlo[0]]`` (and y, z) is the share of axis index ``g`` in the linear storage
     index (ring position, brick, place in the brick), so a step is one table load.
 
-    One function on purpose: numba adds reference counting around calls that take arrays, and
-    that per-voxel cost would dominate the walk.
+    The walk of one ray is inlined (numba adds reference counting around calls that take
+    arrays): one call per ray at most, never one per voxel, whose cost would dominate.
     """
     # a ray can need at most one new cold block per brick it visits
     worst = (tabx.shape[0] + taby.shape[0] + tabz.shape[0]) // BRICK + 6
     cap = pool.shape[1]
-    wx0 = wlo[0]
-    wy0 = wlo[1]
-    wz0 = wlo[2]
     nh = counters[part, 0]
     nv = counters[part, 1]
     pos = resume[part]
@@ -132,126 +250,13 @@ def _trace_part(  # type: ignore[no-untyped-def]
             continue
         startx = cx
         starty = cy
-        # Per axis: step direction, the plane offset of the next event (1 up, 0 down), the last
-        # cell of the walk in this box (the return's cell or the box's face cell), and the next
-        # event's parameter (inf once the axis has reached the return's cell).
-        if g1x > g0x:
-            stx = 1
-            upx = 1
-            lastx = min(g1x, bhi[0] - 1)
-        else:
-            stx = -1
-            upx = 0
-            lastx = max(g1x, blo[0])
-        if g1y > g0y:
-            sty = 1
-            upy = 1
-            lasty = min(g1y, bhy - 1)
-        else:
-            sty = -1
-            upy = 0
-            lasty = max(g1y, bly)
-        if g1z > g0z:
-            stz = 1
-            upz = 1
-            lastz = min(g1z, bhi[2] - 1)
-        else:
-            stz = -1
-            upz = 0
-            lastz = max(g1z, blo[2])
-        tx = (cx + upx - ox) / dx if cx != g1x else INF
-        ty = (cy + upy - oy) / dy if cy != g1y else INF
-        tz = (cz + upz - oz) / dz if cz != g1z else INF
-        offx = tabx[cx - wx0]
-        offy = taby[cy - wy0]
-        offz = tabz[cz - wz0]
-        reached = False  # the walk arrived at the return's cell (inside this box)
-        while True:
-            idx = offx + offy + offz
-            # next event: the smallest (t, class); a strict minimum is the common case and
-            # each axis gets its own block so that one unpredictable branch decides it. An
-            # axis at its last cell is either done (t = inf, never chosen) or about to leave.
-            # (The blocks are alike on purpose. Measured on the demo flight's clouds: one step
-            # indexed by axis was 1.36x slower, the state leaving the registers; the count
-            # update hoisted above the branch, with a count of axes still to go, 1.06-1.10x.)
-            if tx < ty and tx < tz:
-                v = passes[idx]
-                if v != 255:
-                    passes[idx] = v + 1
-                else:
-                    _carry(passes, 64, idx, cdir, pool, used, part)
-                nv += 1
-                if cx == lastx:
-                    break
-                cx += stx
-                offx = tabx[cx - wx0]
-                tx = (cx + upx - ox) / dx
-                if cx == g1x:
-                    tx = INF
-            elif ty < tz and ty < tx:
-                v = passes[idx]
-                if v != 255:
-                    passes[idx] = v + 1
-                else:
-                    _carry(passes, 64, idx, cdir, pool, used, part)
-                nv += 1
-                if cy == lasty:
-                    break
-                cy += sty
-                offy = taby[cy - wy0]
-                ty = (cy + upy - oy) / dy
-                if cy == g1y:
-                    ty = INF
-            elif tz < tx and tz < ty:
-                v = passes[idx]
-                if v != 255:
-                    passes[idx] = v + 1
-                else:
-                    _carry(passes, 64, idx, cdir, pool, used, part)
-                nv += 1
-                if cz == lastz:
-                    break
-                cz += stz
-                offz = tabz[cz - wz0]
-                tz = (cz + upz - oz) / dz
-                if cz == g1z:
-                    tz = INF
-            else:
-                # a tie (edge or corner) or the end of the ray
-                tm = min(tx, min(ty, tz))
-                if tm == INF:
-                    reached = True
-                    break
-                mvx = tx == tm
-                mvy = ty == tm
-                mvz = tz == tm
-                # up-steps at t happen at t, down-steps just after it
-                if (mvx and stx > 0) or (mvy and sty > 0) or (mvz and stz > 0):
-                    mvx = mvx and stx > 0
-                    mvy = mvy and sty > 0
-                    mvz = mvz and stz > 0
-                v = passes[idx]
-                if v != 255:
-                    passes[idx] = v + 1
-                else:
-                    _carry(passes, 64, idx, cdir, pool, used, part)
-                nv += 1
-                if (mvx and cx == lastx) or (mvy and cy == lasty) or (mvz and cz == lastz):
-                    break  # the next cell is outside the box
-                if mvx:
-                    cx += stx
-                    offx = tabx[cx - wx0]
-                    tx = (cx + upx - ox) / dx if cx != g1x else INF
-                if mvy:
-                    cy += sty
-                    offy = taby[cy - wy0]
-                    ty = (cy + upy - oy) / dy if cy != g1y else INF
-                if mvz:
-                    cz += stz
-                    offz = tabz[cz - wz0]
-                    tz = (cz + upz - oz) / dz if cz != g1z else INF
+        stx, upx, lastx = _axis(g0x, g1x, blo[0], bhi[0])
+        sty, upy, lasty = _axis(g0y, g1y, bly, bhy)
+        stz, upz, lastz = _axis(g0z, g1z, blo[2], bhi[2])
+        reached, idx, cx, cy, nv = _walk(
+            passes, cdir, pool, used, part, (tabx, taby, tabz), wlo, ox, oy, oz, dx, dy, dz,
+            cx, cy, cz, g1x, g1y, g1z, stx, sty, stz, upx, upy, upz, lastx, lasty, lastz, nv)
         if reached:
-            idx = offx + offy + offz
             v = hits[idx]
             if v != 255:
                 hits[idx] = v + 1
