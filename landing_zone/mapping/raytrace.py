@@ -2,7 +2,7 @@
 
 Each return is a segment from its sensor origin ``o`` to the return ``p``. In lattice units
 (``u = p / voxel_size``, computed in float64) voxel ``g`` is the half-open cell ``[g, g + 1)``
-per axis (the floor convention of docs/ARCHITECTURE.md). The return's voxel ``floor(p)`` gets a
+per axis (the floor convention). The return's voxel ``floor(p)`` gets a
 hit; every other cell the closed segment meets gets a pass. That one rule settles every tie:
 
 * a point exactly on a face belongs to the cell above it (``floor``);

@@ -3,7 +3,7 @@
 ``train`` fits the temperature on validation scenes of the families it trained on: P(safe) then
 means what it says on data like the training set, and nothing more. On an obstacle of a shape
 the net never saw it stays as sure as on a familiar one, and that is the failure a planner pays
-for. The leave-groups-out models (``scripts/lofo.sh`` with ``FOLDS=K``) give, for every train
+for. The leave-groups-out models (``landing-zone train-fleet``) give, for every train
 family, the logits of a net that never saw it: pooled, they are this project's best stand-in for
 a site nobody simulated. :func:`calibrate` fits ``P(safe) = sigmoid(logit / T + b)``
 (:func:`~landing_zone.tools.learn.calibration.fit_platt`) on them and writes ``T`` and ``b`` into

@@ -25,7 +25,7 @@ Files beside ``--out`` (for ``model.safetensors``):
   after every epoch and every ``checkpoint_minutes``; ``--resume`` continues from it.
 - ``model.log.csv``: one row per epoch: train loss, validation loss and AUC, time.
 
-Fine-tuning (``init``, e.g. to a site: README, "Site adaptation") is conservative by default:
+Fine-tuning (``init``, e.g. to a site) is conservative by default:
 the loss penalises every obstacle sample the net judges safer than the initial net does
 (:mod:`landing_zone.tools.learn.leniency`), and the model keeps the initial model's calibration
 (fitted on families it never saw), its offset lowered where the validation obstacles need it
@@ -77,7 +77,7 @@ __all__ = ['TrainConfig', 'train', 'train_config_from', 'describe']
 class TrainConfig:
     """How to train; stored in the checkpoint."""
 
-    arch: str = DEFAULT_SPEC  # network spec (model.parse_spec)
+    arch: str = DEFAULT_SPEC  # network spec (landing_zone.judging.spec.parse_spec)
     epochs: int = 6
     lr: float = 0.01  # SGD learning rate
     # 'constant' (the paper's) or 'cosine': lr * (1 + cos(pi * t)) / 2 over the run's batches,
@@ -282,9 +282,8 @@ def _calibration_method(cfg: TrainConfig, init: Any, anchor_data: Any, data: Any
 
 def _precision(cfg: TrainConfig, device: torch.device) -> tuple[bool, str]:
     """Whether to train in bf16 autocast, and the precision of the evaluations."""
-    # Measured on an H100 with the paper's net, channels-last, ms per sample for forward +
-    # backward + SGD: batch 20 fp32 0.116, bf16 0.146; batch 128 fp32 0.094, bf16 0.080. On
-    # CPUs bf16 was slower wherever measured (see judging.inference.Predictor).
+    # bf16 pays on a GPU only for large batches (at the paper's batch of 20 it is slower than
+    # fp32), and on CPUs without native bf16 it falls back to slow kernels
     use_bf16 = cfg.precision == 'bf16' or (cfg.precision == 'auto' and device.type == 'cuda'
                                            and cfg.batch_size >= 64)
     if use_bf16 and device.type == 'cpu' and not bf16_supported():

@@ -38,13 +38,11 @@ they were); the priors ``meadow``, ``forb`` and ``canopy`` came after it and are
 when asked for (``simulate --dataset synth3 --vegetation meadow,forb``). Made of blades alone,
 ``meadow`` holds nothing of ``shrub`` (leafy canopies), so ``shrub`` held out stays unseen with
 meadow in training; its clumped layers do cover ``tussock``'s clumps, so ``tussock`` held out
-no longer is (what it does as training data, little: ``docs/EXPERIMENTS.md``, "The meadow
-prior"). ``forb`` is leaves on stems, not a canopy: it shares leaves with ``shrub`` but not
+no longer is. ``forb`` is leaves on stems, not a canopy: it shares leaves with ``shrub`` but not
 its shape (a rounded volume of leaves up to 70 cm across), so ``shrub`` held out with ``forb``
 in training is a shape never seen made of a material seen. ``canopy`` spans ``shrub``'s shapes
 (one dome 15-35 cm high, 0.3-0.7 m across) among many others: with it in training, ``shrub``
-held out is covered, not unseen, as ``tussock`` is by ``meadow``. What both do:
-``docs/EXPERIMENTS.md``, "Leafy priors".
+held out is covered, not unseen, as ``tussock`` is by ``meadow``.
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
