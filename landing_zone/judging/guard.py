@@ -126,8 +126,8 @@ def _is_solid(hits, passes, xi, yj, zk, min_hits, ratio, shadow):  # type: ignor
 
 
 @nb.njit(cache=True, nogil=True, inline='always')
-def _flood(hits, label, stack, offsets, shift, i, j, k, n, x0, y0, z0, tv, margin,
-           reach):  # type: ignore[no-untyped-def]
+def _flood(  # type: ignore[no-untyped-def]
+        hits, label, stack, offsets, shift, i, j, k, n, x0, y0, z0, tv, margin, reach):
     """Number the cluster of solid voxel (i, j, k) ``n``; its returns, voxels, top (voxels
     above the band's floor) and whether it reaches into the tile (``reach`` voxels beyond)."""
     rx, _, rz = label.shape
