@@ -8,6 +8,7 @@ an import moved into a function to dodge a cycle is still seen."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -188,3 +189,30 @@ def test_old_flat_modules_are_gone():
                 'bagio', 'insert', 'train', 'evaluate', 'tune', 'calibration',
                 'baselines', 'benchmarks'):
         assert f'landing_zone.{old}' not in MODULES, old
+
+
+# a citation of a document in the code: docs/NAME.md or models/NAME.md, then a section as
+# "§N" or as its quoted title
+CITATION = re.compile(r'((?:docs|models)/[A-Za-z_]+\.md)(?:[,)]?\s*(?:§\s*(\d+)|"([^"]+)"))?')
+
+
+def headings(path: Path) -> list[str]:
+    return [line.lstrip('#').strip() for line in path.read_text(encoding='utf-8').splitlines()
+            if line.startswith('#')]
+
+
+def test_the_documents_and_sections_code_cites_exist():
+    missing = []
+    for name, path in MODULES.items():
+        text = ' '.join(path.read_text(encoding='utf-8').split())  # citations may wrap
+        for doc, number, title in CITATION.findall(text):
+            target = ROOT / doc
+            if not target.is_file():
+                missing.append(f'{name}: {doc}')
+                continue
+            heads = headings(target)
+            if number and not any(h.startswith(f'{number}.') for h in heads):
+                missing.append(f'{name}: {doc} §{number}')
+            if title and not any(title.lower() in h.lower() for h in heads):
+                missing.append(f'{name}: {doc}, "{title}"')
+    assert not missing, f'citations of documents or sections that do not exist: {missing}'
