@@ -1,14 +1,15 @@
 """An ensemble of safety CNNs judged as one net: the mean of its members' logits.
 
-The idea: members trained on different subsets of the families (the fold models of
-:func:`landing_zone.tools.evaluate.lofo.family_folds`) disagree where a tile looks like a family some of
-them never saw, and their mean logit is then less sure there. Measured, it was not enough to
-ship one: members without a third of the families rank worse than one model trained on all of
-them (experiments/2026-12-02_subset_ensemble_and_cosine).
+Why: members trained on different subsets of the families (the fold models of
+:func:`landing_zone.tools.evaluate.lofo.family_folds`) disagree where a tile looks like a family
+some of them never saw, and their mean logit is then less sure there; the price is that each
+member saw fewer families than one model trained on all of them.
+
 A :class:`SafetyEnsemble` offers what the rest of the code asks of a
 :class:`~landing_zone.judging.net.SafetyNet` (``embed``, ``head``, ``forward``, ``spec``,
-``input_pool``, ``temperature`` and ``offset``), so the tiler, :class:`~landing_zone.judging.
-inference.Predictor`, the OOD signal, calibration and evaluation take either:
+``input_pool``, ``temperature`` and ``offset``), so the tiler,
+:class:`~landing_zone.judging.inference.Predictor`, the OOD signal, calibration and evaluation
+take either:
 
 * the logit is the mean of the members' raw logits; the ensemble has one calibration of its own
   (``temperature``, ``offset``), fitted on it (each member's own calibration is not used);

@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from landing_zone.judging.tiles import is_occupied
+from landing_zone.judging.occupancy import is_occupied
 
 __all__ = ['TileGround', 'fit_ground', 'slope_deg', 'MIN_GROUND_COLUMNS']
 

@@ -83,6 +83,89 @@ class GuardResult:
         return GuardResult(self.fired[sel], self.hits[sel], self.voxels[sel], self.height[sel])
 
 
+@nb.njit(cache=True, nogil=True)
+def _neighbour_offsets():  # type: ignore[no-untyped-def]
+    """(26, 3) the offsets of a voxel's 26 neighbours."""
+    offsets = np.empty((26, 3), np.int64)
+    n_off = 0
+    for a in range(-1, 2):
+        for b in range(-1, 2):
+            for c in range(-1, 2):
+                if a != 0 or b != 0 or c != 0:
+                    offsets[n_off, 0] = a
+                    offsets[n_off, 1] = b
+                    offsets[n_off, 2] = c
+                    n_off += 1
+    return offsets
+
+
+@nb.njit(cache=True, nogil=True, inline='always')
+def _is_solid(hits, passes, xi, yj, zk, min_hits, ratio, shadow):  # type: ignore[no-untyped-def]
+    """Whether box voxel (xi, yj, zk) is solid: hit often enough, mostly hit, and shading the
+    least crossed of the voxel beneath and the four beside it."""
+    nx, ny, _ = hits.shape
+    h = hits[xi, yj, zk]
+    if h < min_hits:
+        return False
+    hf = np.float64(h)
+    # the least crossed of the voxel beneath and the four beside it: under a top surface, or
+    # behind a wall seen from the side (thin walls of open crates and buckets leave the voxel
+    # beneath crossed)
+    shade = passes[xi, yj, zk - 1] if zk > 0 else 0
+    if xi > 0:
+        shade = min(shade, passes[xi - 1, yj, zk])
+    if xi + 1 < nx:
+        shade = min(shade, passes[xi + 1, yj, zk])
+    if yj > 0:
+        shade = min(shade, passes[xi, yj - 1, zk])
+    if yj + 1 < ny:
+        shade = min(shade, passes[xi, yj + 1, zk])
+    behind = np.float64(shade)
+    return (hf >= ratio * (hf + np.float64(passes[xi, yj, zk]))
+            and behind <= shadow * (hf + behind))
+
+
+@nb.njit(cache=True, nogil=True, inline='always')
+def _flood(  # type: ignore[no-untyped-def]
+        hits, label, stack, offsets, shift, i, j, k, n, x0, y0, z0, tv, margin, reach):
+    """Number the cluster of solid voxel (i, j, k) ``n``; its returns, voxels, top (voxels
+    above the band's floor) and whether it reaches into the tile (``reach`` voxels beyond)."""
+    rx, _, rz = label.shape
+    label[i, j, k] = n
+    stack[0, 0] = i
+    stack[0, 1] = j
+    stack[0, 2] = k
+    top = 1
+    c_hits = 0
+    c_vox = 0
+    c_top = 0
+    inner = False
+    while top > 0:
+        top -= 1
+        a = stack[top, 0]
+        b = stack[top, 1]
+        c = stack[top, 2]
+        c_hits += hits[x0 + a, y0 + b, z0 + shift[a, b] + c]
+        c_vox += 1
+        if c > c_top:
+            c_top = c
+        if (margin - reach <= a < margin + tv + reach
+                and margin - reach <= b < margin + tv + reach):
+            inner = True
+        for o in range(offsets.shape[0]):
+            a2 = a + offsets[o, 0]
+            b2 = b + offsets[o, 1]
+            c2 = c + offsets[o, 2]
+            if (0 <= a2 < rx and 0 <= b2 < rx and 0 <= c2 < rz
+                    and label[a2, b2, c2] == -1):
+                label[a2, b2, c2] = n
+                stack[top, 0] = a2
+                stack[top, 1] = b2
+                stack[top, 2] = c2
+                top += 1
+    return c_hits, c_vox, c_top, inner
+
+
 @nb.njit(cache=True, parallel=True)
 def _guard_kernel(  # type: ignore[no-untyped-def]
         hits, passes, lo, tiles, ground_k, grad, tv, margin, reach, k_lo, k_hi, min_hits,
@@ -98,16 +181,7 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
     nx, ny, nz = hits.shape
     rx = tv + 2 * margin
     rz = k_hi - k_lo + 1
-    offsets = np.empty((26, 3), np.int64)
-    n_off = 0
-    for a in range(-1, 2):
-        for b in range(-1, 2):
-            for c in range(-1, 2):
-                if a != 0 or b != 0 or c != 0:
-                    offsets[n_off, 0] = a
-                    offsets[n_off, 1] = b
-                    offsets[n_off, 2] = c
-                    n_off += 1
+    offsets = _neighbour_offsets()
     for t in nb.prange(tiles.shape[0]):
         out_hits[t] = 0
         out_vox[t] = 0
@@ -137,31 +211,13 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
                     continue
                 for k in range(rz):
                     zk = z0 + shift[i, j] + k
-                    if zk < 0 or zk >= nz:
-                        continue
-                    h = hits[xi, yj, zk]
-                    if h < min_hits:
-                        continue
-                    hf = np.float64(h)
-                    # the least crossed of the voxel beneath and the four beside it: under
-                    # a top surface, or behind a wall seen from the side (thin walls of open
-                    # crates and buckets leave the voxel beneath crossed)
-                    shade = passes[xi, yj, zk - 1] if zk > 0 else 0
-                    if xi > 0:
-                        shade = min(shade, passes[xi - 1, yj, zk])
-                    if xi + 1 < nx:
-                        shade = min(shade, passes[xi + 1, yj, zk])
-                    if yj > 0:
-                        shade = min(shade, passes[xi, yj - 1, zk])
-                    if yj + 1 < ny:
-                        shade = min(shade, passes[xi, yj + 1, zk])
-                    behind = np.float64(shade)
-                    if (hf >= ratio * (hf + np.float64(passes[xi, yj, zk]))
-                            and behind <= shadow * (hf + behind)):
+                    if 0 <= zk < nz and _is_solid(hits, passes, xi, yj, zk, min_hits, ratio,
+                                                  shadow):
                         label[i, j, k] = -1
                         any_solid = True
         if not any_solid:
             continue
+        # the clusters, flooded one by one: the one with the most returns that reaches in
         stack = np.empty((rx * rx * rz, 3), np.int64)
         n_clusters = 0
         for i in range(rx):
@@ -170,38 +226,9 @@ def _guard_kernel(  # type: ignore[no-untyped-def]
                     if label[i, j, k] != -1:
                         continue
                     n_clusters += 1
-                    label[i, j, k] = n_clusters
-                    stack[0, 0] = i
-                    stack[0, 1] = j
-                    stack[0, 2] = k
-                    top = 1
-                    c_hits = 0
-                    c_vox = 0
-                    c_top = 0
-                    inner = False
-                    while top > 0:
-                        top -= 1
-                        a = stack[top, 0]
-                        b = stack[top, 1]
-                        c = stack[top, 2]
-                        c_hits += hits[x0 + a, y0 + b, z0 + shift[a, b] + c]
-                        c_vox += 1
-                        if c > c_top:
-                            c_top = c
-                        if (margin - reach <= a < margin + tv + reach
-                                and margin - reach <= b < margin + tv + reach):
-                            inner = True
-                        for o in range(n_off):
-                            a2 = a + offsets[o, 0]
-                            b2 = b + offsets[o, 1]
-                            c2 = c + offsets[o, 2]
-                            if (0 <= a2 < rx and 0 <= b2 < rx and 0 <= c2 < rz
-                                    and label[a2, b2, c2] == -1):
-                                label[a2, b2, c2] = n_clusters
-                                stack[top, 0] = a2
-                                stack[top, 1] = b2
-                                stack[top, 2] = c2
-                                top += 1
+                    c_hits, c_vox, c_top, inner = _flood(hits, label, stack, offsets, shift,
+                                                         i, j, k, n_clusters, x0, y0, z0, tv,
+                                                         margin, reach)
                     if inner and c_hits > out_hits[t]:
                         out_hits[t] = c_hits
                         out_vox[t] = c_vox

@@ -10,10 +10,8 @@ The candidate's probability is the least of its tiles':
 It is the most any estimate of P(every one of those tiles is safe) can coherently say (no
 event is likelier than one it implies), and it is that probability when the tiles' errors move
 together, which they do: neighbouring tiles share returns, padding context, vegetation and
-often one obstacle. On fresh simulated flights the product over the tiles (independent tiles)
-read 0.5-0.8 on footprints 99-100 % clear; the least P is conservative in every bin, and
-``SiteConfig.min_p_safe`` 0.8 on it lists the places 0.5 on the product did (docs/LANDING_SITES.md,
-"A site's P(safe)"; experiments/2026-12-03_site_probability).
+often one obstacle. The product over the tiles (independent tiles) would understate clear
+footprints and overstate the evidence; the least P never claims more than a tile shows.
 
 Ties (one tile is often the least under several footprints) go to the footprint whose other
 tiles are surer: ``Candidates.p_mean``, their geometric mean. A tile not observed enough to be

@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike
 
 from landing_zone.config import TileConfig
 from landing_zone.errors import ConfigError
+from landing_zone.judging.occupancy import is_occupied
 
 if TYPE_CHECKING:
     from landing_zone.judging.ground import TileGround
@@ -49,7 +50,6 @@ __all__ = [
     'tiles_from_counts',
     'extract_tiles',
     'CountBuffers',
-    'is_occupied',
 ]
 
 
@@ -138,17 +138,6 @@ def widen_tiles(tiles: np.ndarray, rings: int = 1) -> np.ndarray:
 
 
 # --- the compiled kernel -----------------------------------------------------------------------
-
-@nb.njit(cache=True, nogil=True, inline='always')
-def is_occupied(h, p, occupied):  # type: ignore[no-untyped-def]
-    """Whether a voxel of ``h`` hits and ``p`` passes is occupied: hit at least once and its
-    density (h + 1) / (h + p + 2) at least ``occupied`` (the tiler's and the ground planes'
-    test)."""
-    if h == 0:
-        return False
-    hf = np.float64(h)
-    return (hf + 1.0) >= occupied * (hf + np.float64(p) + 2.0)
-
 
 @nb.njit(cache=True, nogil=True, inline='always')
 def _column_values(hits, passes, xi, yj, z0, c0, c1, row):  # type: ignore[no-untyped-def]

@@ -14,239 +14,35 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
 
-import numba as nb
 import numpy as np
-from numpy.typing import ArrayLike, DTypeLike
+from numpy.typing import ArrayLike
 
 from landing_zone.config import MapConfig
 from landing_zone.errors import ConfigError, InvalidCloudError
+from landing_zone.mapping.dirty import DirtyTiles
 from landing_zone.mapping.parts import PartRunner, run_parts
-from landing_zone.mapping.raytrace import (BRICK, COUNT_MAX, PARTS, SORT_TILE, IntegrationStats,
-                                           prepare_rays, trace_rays)
+from landing_zone.mapping.raytrace import BRICK, PARTS, trace_rays
+from landing_zone.mapping.rays import SORT_TILE, IntegrationStats, as_points, prepare_rays
+from landing_zone.mapping.storage import (BRICK_VOX, COLD_BYTES, READ_COUNTS, READ_DENSITY,
+                                          READ_OBSERVED, aligned_zeros, clear_cold, clear_hot,
+                                          box_query, compact_cold, gather_cold, offset_tables,
+                                          read_chunks, read_hot, ring_ranges, round_up,
+                                          cold_state, state_array)
 
-__all__ = ['DensityMap', 'IntegrationStats', 'COUNT_MAX']
+__all__ = ['DensityMap']
 
-_BRICK_VOX = BRICK ** 3
-_COLD_BYTES = 2 * _BRICK_VOX  # high bytes of the hits, then of the passes, of one brick
 # Below this many rays a batch is walked on the calling thread alone: waking a helper costs
 # more than it saves.
 _PARALLEL_MIN_RAYS = 2048
 _NOTHING = 2 ** 62  # the z floor of a map no ray has touched
 
 
-def _round_up(n: int, m: int) -> int:
-    return (n + m - 1) // m * m
-
-
-def _aligned_zeros(n: int, dtype: DTypeLike, align: int = 64) -> np.ndarray:
-    """Zeroed 1-D array whose data starts on a cache-line boundary (bricks = whole lines).
-
-    The zeros are written, not just mapped: the pages are committed now rather than faulted in
-    one by one while the first clouds are integrated.
-    """
-    itemsize = np.dtype(dtype).itemsize
-    raw = np.empty(n * itemsize + align, np.uint8)
-    raw.fill(0)
-    start = (-raw.ctypes.data) % align
-    return raw[start:start + n * itemsize].view(dtype)
-
-
-# --- compiled storage operations ---------------------------------------------------------------
-
-@nb.njit(cache=True, nogil=True)
-def _window_tables(dims, wlo, wn, qlo, qn):  # type: ignore[no-untyped-def]
-    """What every read of a box (global indices) needs: the part of the box inside the window
-    ([r0, r1) in box coordinates), the brick-layout offsets of its y and z positions and the
-    x stride. Called once per read, so passing arrays costs nothing per voxel."""
-    r0 = np.empty(3, np.int64)
-    r1 = np.empty(3, np.int64)
-    for a in range(3):
-        r0[a] = min(max(wlo[a] - qlo[a], 0), qn[a])
-        r1[a] = max(min(wlo[a] + wn[a] - qlo[a], qn[a]), r0[a])
-    sy_stride = (dims[2] // BRICK) * 64
-    sx_stride = (dims[1] // BRICK) * sy_stride
-    offy = np.empty(qn[1], np.int64)
-    offz = np.empty(qn[2], np.int64)
-    for j in range(r0[1], r1[1]):
-        s = (qlo[1] + j) % dims[1]
-        offy[j] = (s >> 2) * sy_stride + (s & 3) * 4
-    for k in range(r0[2], r1[2]):
-        s = (qlo[2] + k) % dims[2]
-        offz[k] = (s >> 2) * 64 + (s & 3)
-    return r0, r1, offy, offz, sx_stride
-
-
-# what _read_hot writes
-_READ_COUNTS = 0  # the hot bytes of hits and passes (out_a, out_b)
-_READ_DENSITY = 1  # (h + 1) / (h + p + 2) as float32 (out_a)
-_READ_OBSERVED = 2  # h + p > 0 (out_a)
-
-
-@nb.njit(cache=True, nogil=True)
-def _read_hot(  # type: ignore[no-untyped-def]
-        chunk, nchunks, hits, passes, dims, wlo, wn, qlo, qn, what, out_a, out_b):
-    """Read the hot bytes of the requested box (global indices) in logical order: the counts
-    into ``out_a`` / ``out_b``, or the density or observed flags computed from them into
-    ``out_a`` (valid while no cold block exists). Chunk ``chunk`` of ``nchunks`` along x.
-
-    One walk over the storage layout for the three reads; ``what`` is constant per call, so
-    the compiler takes the branch out of the inner loop."""
-    r0, r1, offy, offz, sx_stride = _window_tables(dims, wlo, wn, qlo, qn)
-    z0 = r0[2]
-    z1 = r1[2]
-    span = r1[0] - r0[0]
-    for i in range(r0[0] + chunk * span // nchunks, r0[0] + (chunk + 1) * span // nchunks):
-        s = (qlo[0] + i) % dims[0]
-        offx = (s >> 2) * sx_stride + (s & 3) * 16
-        for j in range(r0[1], r1[1]):
-            base = offx + offy[j]
-            for k in range(z0, z1):
-                idx = base + offz[k]
-                h = hits[idx]
-                p = passes[idx]
-                if what == _READ_COUNTS:
-                    out_a[i, j, k] = h
-                    out_b[i, j, k] = p
-                elif what == _READ_DENSITY:
-                    hf = np.float64(h)
-                    out_a[i, j, k] = np.float32((hf + 1.0) / (hf + np.float64(p) + 2.0))
-                else:
-                    out_a[i, j, k] = (h | p) != 0
-
-
-@nb.njit(cache=True)
-def _gather_cold(  # type: ignore[no-untyped-def]
-        cdir, pool, row_part, dims, wlo, wn, qlo, qn, out_h, out_p):
-    """Add 256 x the cold high bytes of every brick that has them (rare) to the output."""
-    byn = dims[1] // BRICK
-    bzn = dims[2] // BRICK
-    for brick in range(cdir.shape[0]):
-        slot = cdir[brick]
-        if slot < 0:
-            continue
-        bz = brick % bzn
-        by = (brick // bzn) % byn
-        bx = brick // (bzn * byn)
-        part = row_part[by]
-        for w in range(64):
-            hi_h = pool[part, slot, w]
-            hi_p = pool[part, slot, 64 + w]
-            if hi_h == 0 and hi_p == 0:
-                continue
-            s0 = bx * 4 + (w >> 4)
-            s1 = by * 4 + ((w >> 2) & 3)
-            s2 = bz * 4 + (w & 3)
-            # the one global index in the window stored at this storage index
-            g0 = wlo[0] + (s0 - wlo[0]) % dims[0]
-            g1 = wlo[1] + (s1 - wlo[1]) % dims[1]
-            g2 = wlo[2] + (s2 - wlo[2]) % dims[2]
-            if g0 >= wlo[0] + wn[0] or g1 >= wlo[1] + wn[1] or g2 >= wlo[2] + wn[2]:
-                continue  # padding of the ring, not in the window
-            i = g0 - qlo[0]
-            j = g1 - qlo[1]
-            k = g2 - qlo[2]
-            if 0 <= i < qn[0] and 0 <= j < qn[1] and 0 <= k < qn[2]:
-                out_h[i, j, k] += np.uint32(hi_h) << 8
-                out_p[i, j, k] += np.uint32(hi_p) << 8
-
-
-def _clear_hot(arr: np.ndarray, dims: np.ndarray, axis: int, s0: int, s1: int) -> None:
-    """Zero the storage slab [s0, s1) (no wrap) of one axis in a hot array, by brick views.
-
-    Whole bricks go as contiguous runs, the partial bricks at either end plane by plane; numpy's
-    strided fill does the rest, so a 1 m shift costs a fraction of a millisecond.
-    """
-    b = dims // BRICK
-    v = arr.reshape(int(b[0]), int(b[1]), int(b[2]), BRICK, BRICK, BRICK)
-    full0 = -(-s0 // BRICK)
-    full1 = s1 // BRICK
-    planes = list(range(s0, min(s1, full0 * BRICK))) + list(range(max(full1 * BRICK, s0), s1))
-    sel: list[slice | int]
-    if full1 > full0:
-        sel = [slice(None)] * 6
-        sel[axis] = slice(full0, full1)
-        v[tuple(sel)] = 0
-    else:
-        planes = list(range(s0, s1))
-    for s in planes:
-        sel = [slice(None)] * 6  # (one axis's bricks and its voxel in the brick)
-        sel[axis] = s // BRICK
-        sel[3 + axis] = s % BRICK
-        v[tuple(sel)] = 0
-
-
-@nb.njit(cache=True)
-def _clear_cold(cdir, pool, row_part, dims, s0, s1):  # type: ignore[no-untyped-def]
-    """Zero the cold high bytes of the storage box [s0, s1) (no wrap)."""
-    sy_stride = (dims[2] // BRICK) * 64
-    sx_stride = (dims[1] // BRICK) * sy_stride
-    for sx in range(s0[0], s1[0]):
-        offx = (sx >> 2) * sx_stride + (sx & 3) * 16
-        for sy in range(s0[1], s1[1]):
-            base = offx + (sy >> 2) * sy_stride + (sy & 3) * 4
-            part = row_part[sy >> 2]
-            for sz in range(s0[2], s1[2]):
-                idx = base + (sz >> 2) * 64 + (sz & 3)
-                slot = cdir[idx >> 6]
-                if slot >= 0:
-                    pool[part, slot, idx & 63] = 0
-                    pool[part, slot, 64 + (idx & 63)] = 0
-
-
-@nb.njit(cache=True)
-def _compact_cold(cdir, pool, used, row_part, dims):  # type: ignore[no-untyped-def]
-    """Give back cold blocks that scrolling left all zero, keeping each part's pool dense."""
-    byn = dims[1] // BRICK
-    bzn = dims[2] // BRICK
-    nparts = pool.shape[0]
-    new_slot = np.full((nparts, pool.shape[1]), -1, np.int64)
-    fill = np.zeros(nparts, np.int64)
-    for brick in range(cdir.shape[0]):
-        slot = cdir[brick]
-        if slot < 0:
-            continue
-        part = row_part[(brick // bzn) % byn]
-        empty = True
-        for w in range(128):
-            if pool[part, slot, w] != 0:
-                empty = False
-                break
-        if empty:
-            cdir[brick] = -1
-        else:
-            new_slot[part, slot] = 1
-    # renumber the live slots of each part in increasing order (moves only go down)
-    for part in range(nparts):
-        n = 0
-        for slot in range(used[part]):
-            if new_slot[part, slot] >= 0:
-                new_slot[part, slot] = n
-                if n != slot:
-                    pool[part, n, :] = pool[part, slot, :]
-                n += 1
-        for slot in range(n, used[part]):
-            pool[part, slot, :] = 0
-        fill[part] = n
-        used[part] = n
-    for brick in range(cdir.shape[0]):
-        slot = cdir[brick]
-        if slot >= 0:
-            part = row_part[(brick // bzn) % byn]
-            cdir[brick] = new_slot[part, slot]
-
-
-# --- the map -----------------------------------------------------------------------------------
-
 class DensityMap:
     """Scrolling voxel map of hit and pass counts, the input of the tiler.
 
-    Memory: one ``uint8`` for the hits and one for the passes of every voxel (2 bytes), a 4-byte
-    cold-block index per 4 x 4 x 4 brick (0.06 bytes per voxel), and 128-byte cold blocks that
-    hold the high bytes of a brick's counts, allocated only for bricks where some count went
-    past 255. So a map costs 2.07 bytes per voxel (26.5 MB for the default 400 x 400 x 80)
-    until counts grow large, and at most 4.07 bytes per voxel should every brick overflow.
+    Memory (:mod:`landing_zone.mapping.storage`): 2.07 bytes per voxel (26.5 MB for the default
+    400 x 400 x 80) until counts grow past 255, at most 4.07 should every brick overflow.
 
     Saturation: hits and passes are exact up to 65535 each; a count that reaches 65535 stays
     there (it never wraps) while the other goes on counting, so the density of such a voxel is
@@ -263,7 +59,6 @@ class DensityMap:
         shape: voxels of the window along x, y, z.
         lo: (3,) int64, global lattice index of the window's lower corner.
         config: the :class:`MapConfig` it was built from.
-        tile_vox: voxels per side of the tiles whose changes :meth:`pop_dirty` reports.
     """
 
     def __init__(self, config: MapConfig | None = None,
@@ -289,7 +84,7 @@ class DensityMap:
         self._n = np.array(self.shape, np.int64)
         self._z_below_vox = int(round(self.config.z_below / self.voxel_size))
         # Ring dimensions: whole bricks, and y in whole bricks per part so no brick is shared.
-        self._dims = np.array([_round_up(v, BRICK) for v in self.shape], np.int64)
+        self._dims = np.array([round_up(v, BRICK) for v in self.shape], np.int64)
         # Storage brick rows along y are dealt out to the parts in contiguous slabs.
         rows = int(self._dims[1] // BRICK)
         self._nparts = min(PARTS, rows)
@@ -298,15 +93,15 @@ class DensityMap:
         self._row_part = np.repeat(np.arange(self._nparts, dtype=np.int64),
                                    np.diff(self._row_start))
         nvox = int(np.prod(self._dims))
-        self._hits = _aligned_zeros(nvox, np.uint8)
-        self._passes = _aligned_zeros(nvox, np.uint8)
-        self._cdir = np.full(nvox // _BRICK_VOX, -1, np.int32)
+        self._hits = aligned_zeros(nvox, np.uint8)
+        self._passes = aligned_zeros(nvox, np.uint8)
+        self._cdir = np.full(nvox // BRICK_VOX, -1, np.int32)
         # the most cold blocks one ray can claim in one part (see raytrace._trace_part)
         self._worst = int(self._dims.sum() // BRICK + 6)
         # a part never needs more cold blocks than it has bricks
         self._pool_limit = int(np.diff(self._row_start).max() * (self._dims[0] // BRICK)
                                * (self._dims[2] // BRICK))
-        self._pool = np.zeros((self._nparts, min(self._worst, self._pool_limit), _COLD_BYTES),
+        self._pool = np.zeros((self._nparts, min(self._worst, self._pool_limit), COLD_BYTES),
                               np.uint8)
         self._used = np.zeros(self._nparts, np.int64)
         self.parallel = bool(parallel)
@@ -319,7 +114,7 @@ class DensityMap:
         self._z_floor = _NOTHING
         if tile_vox is None:
             tile_vox = max(1, int(round(1.0 / self.voxel_size)))
-        self.tile_vox = 0
+        self._dirty = DirtyTiles(self._nparts)
         self.mark_tile_size(tile_vox)
         self._place(self._lo_for(center))
 
@@ -348,8 +143,7 @@ class DensityMap:
     def nbytes(self) -> int:
         """Bytes of count storage (hot arrays, cold-block index and pools, dirty record)."""
         return int(self._hits.nbytes + self._passes.nbytes + self._cdir.nbytes
-                   + self._pool.nbytes + self._used.nbytes + self._dirty.nbytes
-                   + self._dirty_parts.nbytes)
+                   + self._pool.nbytes + self._used.nbytes + self._dirty.nbytes)
 
     @property
     def cold_blocks(self) -> int:
@@ -390,9 +184,9 @@ class DensityMap:
         Raises:
             InvalidCloudError: an array has the wrong shape or type.
         """
-        pts = _as_points(points, 'points')
+        pts = as_points(points, 'points')
         n = pts.shape[0]
-        org = _as_points(origins, 'origins', allow_single=True)
+        org = as_points(origins, 'origins', allow_single=True)
         if org.shape[0] not in (1, n):
             raise InvalidCloudError(
                 f'origins must be (3,) or (N, 3) with N = {n} rows like points, got '
@@ -420,21 +214,19 @@ class DensityMap:
         while True:
             trace_rays(uo, up, order, nvalid, lo, hi, self._yint, self._tables, self._hits,
                        self._passes, self._cdir, self._pool, self._pool_limit, self._used, resume,
-                       self._dirty_parts, self._dirty_lo, self.tile_vox, counters,
+                       self._dirty.parts, self._dirty.lo, self.tile_vox, counters,
                        runner=self._runner if nvalid >= _PARALLEL_MIN_RAYS else None)
             if np.all(resume >= 2 * nvalid):
                 break
             # a part stopped before a ray that might not find a free cold block: grow, resume
             self._grow_pool()
-        kx, ky = self._dirty.shape
-        self._dirty |= np.bitwise_or.reduce(self._dirty_parts[:, :kx], axis=0)
-        self._dirty_parts[:] = 0
+        self._dirty.merge_parts()
         stats.voxels = int(counters[:, 1].sum())
         return stats
 
     def _grow_pool(self) -> None:
         cap = self._pool.shape[1]
-        pool = np.zeros((self._nparts, min(2 * cap, self._pool_limit), _COLD_BYTES), np.uint8)
+        pool = np.zeros((self._nparts, min(2 * cap, self._pool_limit), COLD_BYTES), np.uint8)
         pool[:, :cap] = self._pool
         self._pool = pool
 
@@ -482,7 +274,7 @@ class DensityMap:
             self._pool.fill(0)
             self._used.fill(0)
             self._place(new)
-            self._dirty[:] = 1
+            self._dirty.grid[:] = 1
             return int(np.prod(n))
         for axis in range(3):
             if delta[axis] == 0:
@@ -491,16 +283,16 @@ class DensityMap:
                 g0, g1 = old_lo[axis] + n[axis], new[axis] + n[axis]
             else:
                 g0, g1 = new[axis], old_lo[axis]
-            for s0, s1 in _ring_ranges(g0, g1, int(self._dims[axis])):
-                _clear_hot(self._hits, self._dims, axis, s0, s1)
-                _clear_hot(self._passes, self._dims, axis, s0, s1)
+            for s0, s1 in ring_ranges(g0, g1, int(self._dims[axis])):
+                clear_hot(self._hits, self._dims, axis, s0, s1)
+                clear_hot(self._passes, self._dims, axis, s0, s1)
                 if self._used.any():
                     a = np.zeros(3, np.int64)
                     b = self._dims.copy()
                     a[axis], b[axis] = s0, s1
-                    _clear_cold(self._cdir, self._pool, self._row_part, self._dims, a, b)
+                    clear_cold(self._cdir, self._pool, self._row_part, self._dims, a, b)
         if self._used.any():
-            _compact_cold(self._cdir, self._pool, self._used, self._row_part, self._dims)
+            compact_cold(self._cdir, self._pool, self._used, self._row_part, self._dims)
         self._place(new, delta=delta, old_lo=old_lo)
         entered = int(np.prod(n)) - int(np.prod(n - np.abs(delta)))
         return entered
@@ -508,7 +300,7 @@ class DensityMap:
     def _place(self, lo: np.ndarray, delta: np.ndarray | None = None,
                old_lo: np.ndarray | None = None) -> None:
         """Set ``lo`` and everything derived from it; carry the dirty record over."""
-        old_dirty = self._dirty_tiles() if delta is not None else np.zeros((0, 2), np.int64)
+        old_dirty = self._dirty.tiles() if delta is not None else None
         self.lo = np.asarray(lo, np.int64).copy()
         # each part's storage y-range as (at most two) global y intervals inside the window
         self._yint = np.zeros((self._nparts, 2, 2), np.int64)
@@ -521,57 +313,29 @@ class DensityMap:
                 b = base + rep * my + int(self._row_start[part + 1]) * BRICK
                 self._yint[part, rep] = (max(a, wy0), max(min(b, wy1), max(a, wy0)))
         # the linear-storage share of every window index per axis (see raytrace._trace_part)
-        self._tables = _offset_tables(self.lo, self._n, self._dims)
-        tv = self.tile_vox
-        self._dirty_lo = self.lo[:2] // tv
-        klast = (self.hi[:2] - 1) // tv
-        self._dirty = np.zeros(tuple(int(v) for v in klast - self._dirty_lo + 1), np.uint8)
-        self._dirty_parts = _part_records(self._nparts, self._dirty.shape)
-        if len(old_dirty):
-            rel = old_dirty - self._dirty_lo
-            keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
-            self._dirty[rel[keep, 0], rel[keep, 1]] = 1
+        self._tables = offset_tables(self.lo, self._n, self._dims)
+        self._dirty.resize(self.lo, self._n, self.tile_vox, 0)
+        if old_dirty is not None and len(old_dirty):
+            self._dirty.mark(old_dirty)
         if delta is None:
             return
         assert old_lo is not None  # a move passes both
-        if delta[2] != 0:
-            self._dirty[:] = 1  # cells entered or left in every column
-            return
-        for axis in range(2):
-            if delta[axis] == 0:
-                continue
-            if delta[axis] > 0:
-                # entering: [old_hi, new_hi); the tile of the new first column lost cells
-                cols = (old_lo[axis] + self._n[axis], self.hi[axis] - 1, self.lo[axis])
-            else:
-                cols = (self.lo[axis], old_lo[axis] - 1, self.hi[axis] - 1)
-            k0 = cols[0] // tv - self._dirty_lo[axis]
-            k1 = cols[1] // tv - self._dirty_lo[axis]
-            kb = cols[2] // tv - self._dirty_lo[axis]
-            sel = [slice(None), slice(None)]
-            sel[axis] = slice(int(k0), int(k1) + 1)
-            self._dirty[tuple(sel)] = 1
-            sel[axis] = slice(int(kb), int(kb) + 1)
-            self._dirty[tuple(sel)] = 1
+        self._dirty.scrolled(delta, old_lo, self.lo, self.hi, self._n)
 
     # -- dirty tiles ------------------------------------------------------------------------
+
+    @property
+    def tile_vox(self) -> int:
+        """Voxels per side of the tiles whose changes :meth:`pop_dirty` reports."""
+        return self._dirty.tile_vox
 
     def mark_tile_size(self, tile_vox: int) -> None:
         """Set the tile edge (voxels) of the dirty record; every tile becomes dirty."""
         tile_vox = int(tile_vox)
         if tile_vox < 1:
             raise ConfigError(f'tile_vox must be a positive number of voxels, got {tile_vox}')
-        first = self.tile_vox == 0
-        self.tile_vox = tile_vox
-        self._dirty_lo = self.lo[:2] // tile_vox
-        klast = (self.lo[:2] + self._n[:2] - 1) // tile_vox
-        self._dirty = np.full(tuple(int(v) for v in klast - self._dirty_lo + 1),
-                              0 if first else 1, np.uint8)
-        self._dirty_parts = _part_records(self._nparts, self._dirty.shape)
-
-    def _dirty_tiles(self) -> np.ndarray:
-        idx = np.argwhere(self._dirty != 0).astype(np.int64)
-        return idx + self._dirty_lo
+        first = self._dirty.tile_vox == 0
+        self._dirty.resize(self.lo, self._n, tile_vox, 0 if first else 1)
 
     def pop_dirty(self) -> np.ndarray:
         """Tiles whose voxels changed since the last call, and forget them.
@@ -584,26 +348,13 @@ class DensityMap:
         Returns:
             (K, 2) int64 global tile indices, sorted by x then y.
         """
-        out = self._dirty_tiles()
-        self._dirty[:] = 0
-        return out
+        return self._dirty.pop()
 
     # -- reading ----------------------------------------------------------------------------
 
     def _query(self, lo: ArrayLike | None, shape: ArrayLike | None
                ) -> tuple[np.ndarray, np.ndarray]:
-        q_lo = self.lo.copy() if lo is None else np.asarray(lo).reshape(-1)
-        q_n = self._n.copy() if shape is None else np.asarray(shape).reshape(-1)
-        if q_lo.shape != (3,) or not np.issubdtype(q_lo.dtype, np.integer):
-            raise ConfigError(f'lo must be three integers, got {lo!r}')
-        if q_n.shape != (3,) or not np.issubdtype(q_n.dtype, np.integer) or np.any(q_n < 0):
-            raise ConfigError(f'shape must be three non-negative integers, got {shape!r}')
-        return q_lo.astype(np.int64), q_n.astype(np.int64)
-
-    @staticmethod
-    def _read_chunks(size: int) -> int:
-        # threads only pay for themselves on large reads (the tiler's full-map reads)
-        return 8 if size >= 1 << 20 else 1
+        return box_query(lo, shape, self.lo, self._n)
 
     def counts(self, lo: ArrayLike | None = None, shape: ArrayLike | None = None,
                out: tuple[np.ndarray, np.ndarray] | None = None
@@ -636,13 +387,13 @@ class DensityMap:
                 out_h.fill(0)
                 out_p.fill(0)
         if out_h.size:
-            chunks = self._read_chunks(out_h.size)
-            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
-                                          self._n, q_lo, q_n, _READ_COUNTS, out_h, out_p),
+            chunks = read_chunks(out_h.size)
+            run_parts(read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                         self._n, q_lo, q_n, READ_COUNTS, out_h, out_p),
                       self._runner)
             if self._used.any():
-                _gather_cold(self._cdir, self._pool, self._row_part, self._dims, self.lo,
-                             self._n, q_lo, q_n, out_h, out_p)
+                gather_cold(self._cdir, self._pool, self._row_part, self._dims, self.lo,
+                            self._n, q_lo, q_n, out_h, out_p)
         return out_h, out_p
 
     def density(self, lo: ArrayLike | None = None,
@@ -659,9 +410,9 @@ class DensityMap:
             return dens
         out = np.full(tuple(q_n), 0.5, np.float32)
         if out.size:
-            chunks = self._read_chunks(out.size)
-            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
-                                          self._n, q_lo, q_n, _READ_DENSITY, out, out),
+            chunks = read_chunks(out.size)
+            run_parts(read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                         self._n, q_lo, q_n, READ_DENSITY, out, out),
                       self._runner)
         return out
 
@@ -675,9 +426,9 @@ class DensityMap:
             return seen
         out = np.zeros(tuple(q_n), bool)
         if out.size:
-            chunks = self._read_chunks(out.size)
-            run_parts(_read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
-                                          self._n, q_lo, q_n, _READ_OBSERVED, out, out),
+            chunks = read_chunks(out.size)
+            run_parts(read_hot, chunks, (chunks, self._hits, self._passes, self._dims, self.lo,
+                                         self._n, q_lo, q_n, READ_OBSERVED, out, out),
                       self._runner)
         return out
 
@@ -699,7 +450,7 @@ class DensityMap:
         return {'lo': self.lo.copy(), 'tile_vox': np.array([self.tile_vox], np.int64),
                 'hits': self._hits.copy(), 'passes': self._passes.copy(),
                 'cdir': self._cdir.copy(), 'pool': self._pool[:, :cap].copy(), 'used': used,
-                'dirty': self._dirty_tiles()}
+                'dirty': self._dirty.tiles()}
 
     def import_state(self, state: dict[str, np.ndarray]) -> None:
         """Restore what :meth:`export_state` gave, on a map of the same configuration.
@@ -707,33 +458,16 @@ class DensityMap:
         Raises:
             ConfigError: the arrays do not fit this map (another shape or layout).
         """
-        def arr(name: str, dtype: Any, shape: tuple[int, ...] | None) -> np.ndarray:
-            a = state.get(name)
-            if not isinstance(a, np.ndarray) or a.dtype != np.dtype(dtype) or (
-                    shape is not None and a.shape != shape):
-                got = 'missing' if a is None else f'{getattr(a, "dtype", "?")} ' \
-                                                  f'{getattr(a, "shape", "?")}'
-                raise ConfigError(f'map state {name!r}: expected {np.dtype(dtype)} '
-                                  f'{shape if shape is not None else ""}, got {got}')
-            return a
-
-        lo = arr('lo', np.int64, (3,))
-        tile_vox = arr('tile_vox', np.int64, (1,))
+        lo = state_array(state, 'lo', np.int64, (3,))
+        tile_vox = state_array(state, 'tile_vox', np.int64, (1,))
         if int(tile_vox[0]) != self.tile_vox:
             raise ConfigError(f'map state has tiles of {int(tile_vox[0])} voxels, this map '
                               f'{self.tile_vox}')
-        hits = arr('hits', np.uint8, self._hits.shape)
-        passes = arr('passes', np.uint8, self._passes.shape)
-        cdir = arr('cdir', np.int32, self._cdir.shape)
-        used = arr('used', np.int64, self._used.shape)
-        pool = arr('pool', np.uint8, None)
-        if pool.ndim != 3 or pool.shape[0] != self._nparts or pool.shape[2] != _COLD_BYTES \
-                or int(used.max(initial=0)) > pool.shape[1] \
-                or pool.shape[1] > self._pool_limit:
-            raise ConfigError(f'map state pool of shape {pool.shape} does not fit this map')
-        if int(cdir.max(initial=-1)) >= max(pool.shape[1], 1):
-            raise ConfigError('map state cold-block index points past its pool')
-        dirty = arr('dirty', np.int64, None)
+        hits = state_array(state, 'hits', np.uint8, self._hits.shape)
+        passes = state_array(state, 'passes', np.uint8, self._passes.shape)
+        cdir, pool, used = cold_state(state, self._cdir.shape, self._used.shape,
+                                      self._pool_limit)
+        dirty = state_array(state, 'dirty', np.int64, None)
         if dirty.ndim != 2 or dirty.shape[1] != 2:
             raise ConfigError(f'map state dirty tiles of shape {dirty.shape}, expected (K, 2)')
         self._place(np.asarray(lo, np.int64))
@@ -741,14 +475,12 @@ class DensityMap:
         self._passes[:] = passes
         self._cdir[:] = cdir
         cap = max(self._pool.shape[1], pool.shape[1])
-        self._pool = np.zeros((self._nparts, cap, _COLD_BYTES), np.uint8)
+        self._pool = np.zeros((self._nparts, cap, COLD_BYTES), np.uint8)
         self._pool[:, :pool.shape[1]] = pool
         self._used[:] = used
         self._z_floor = int(self.lo[2])  # not recorded: any level may hold counts
-        self._dirty[:] = 0
-        rel = dirty - self._dirty_lo
-        keep = np.all((rel >= 0) & (rel < self._dirty.shape), axis=1)
-        self._dirty[rel[keep, 0], rel[keep, 1]] = 1
+        self._dirty.grid[:] = 0
+        self._dirty.mark(dirty)
 
     def clear(self) -> None:
         """Forget every count (the window stays where it is)."""
@@ -758,59 +490,10 @@ class DensityMap:
         self._cdir.fill(-1)
         self._pool.fill(0)
         self._used.fill(0)
-        self._dirty[:] = 1
+        self._dirty.grid[:] = 1
 
     def __repr__(self) -> str:
         lo_m, hi_m = self.bounds
         return (f'DensityMap(shape={self.shape}, voxel_size={self.voxel_size}, '
                 f'lo={self.lo.tolist()}, box=[{lo_m.round(3).tolist()}, '
                 f'{hi_m.round(3).tolist()}] m, {self.nbytes / 1e6:.1f} MB)')
-
-
-def _part_records(nparts: int, shape: tuple[int, ...]) -> np.ndarray:
-    """One dirty-tile record per part, 64 bytes apart so the threads never share a line."""
-    pad = 64 // max(shape[1], 1) + 1
-    return np.zeros((nparts, shape[0] + pad, shape[1]), np.uint8)
-
-
-def _offset_tables(lo: np.ndarray, n: np.ndarray, dims: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per axis, the linear storage offset of window index ``lo + i`` (ring, brick, cell)."""
-    sz_stride = _BRICK_VOX
-    sy_stride = int(dims[2] // BRICK) * sz_stride
-    sx_stride = int(dims[1] // BRICK) * sy_stride
-    out = []
-    for axis, (stride, inner) in enumerate(((sx_stride, 16), (sy_stride, 4), (sz_stride, 1))):
-        s = (lo[axis] + np.arange(n[axis], dtype=np.int64)) % dims[axis]
-        out.append((s >> 2) * stride + (s & 3) * inner)
-    return out[0], out[1], out[2]
-
-
-def _ring_ranges(g0: int, g1: int, m: int) -> list[tuple[int, int]]:
-    """Storage ranges (no wrap) of the global range [g0, g1) in a ring of m (g1 - g0 <= m)."""
-    if g1 <= g0:
-        return []
-    s0 = g0 % m
-    length = g1 - g0
-    if s0 + length <= m:
-        return [(s0, s0 + length)]
-    return [(s0, m), (0, s0 + length - m)]
-
-
-def _as_points(arr: ArrayLike, name: str, allow_single: bool = False) -> np.ndarray:
-    """Validate an (N, 3) (or (3,)) numeric array; C-contiguous float64 out."""
-    try:
-        a = np.asarray(arr)
-    except (TypeError, ValueError) as err:
-        raise InvalidCloudError(f'{name} must be a numeric array, got {type(arr).__name__}') \
-            from err
-    if a.dtype.kind not in 'fiu':
-        raise InvalidCloudError(f'{name} must be numeric, got dtype {a.dtype}')
-    if allow_single and a.shape == (3,):
-        a = a.reshape(1, 3)
-    if a.ndim != 2 or a.shape[1] != 3:
-        want = '(3,) or (N, 3)' if allow_single else '(N, 3)'
-        raise InvalidCloudError(f'{name} must have shape {want}, got {a.shape}')
-    # one compiled specialisation: float32 clouds are widened here (exactly; a 10k-point
-    # copy costs microseconds), and the kernel divides float64 by float64 either way
-    return np.ascontiguousarray(a, dtype=np.float64)

@@ -1,1 +1,2 @@
-"""Offline tooling, never imported by the node: simulation, learning, evaluation, benchmarks, the CLI."""
+"""Offline tooling, never imported by the node: simulation, learning, evaluation, benchmarks,
+the CLI."""

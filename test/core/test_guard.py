@@ -185,13 +185,14 @@ def grass_flight(tmp_path_factory):
     from landing_zone.tools.sim.placement import SINK, ground_height
     from landing_zone.tools.sim.recorded import read_flight
     from landing_zone.tools.sim.flight import flight_config, simulate_flight
-    from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel, _box_parts, _normalise
+    from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel
+    from landing_zone.tools.sim.shapes import box_parts, normalise
 
     out = tmp_path_factory.mktemp('guard')
     cfg = flight_config('tall', 'line', size=6.0, obstacles=0, seed=3, grass_density=1000.0)
     clear = simulate_flight(cfg, out / 'grass.mcap').bag
-    v, f = _box_parts([((0.0, 0.0, 0.0), (0.4, 0.3, 0.25))])
-    model = ObstacleModel('test_box', 'box', 'test', _normalise(v), f)
+    v, f = box_parts([((0.0, 0.0, 0.0), (0.4, 0.3, 0.25))])
+    model = ObstacleModel('test_box', 'box', 'test', normalise(v), f)
     points = read_flight(clear).points
     g = ground_height(points, 0.5, 0.5, 0.6)
     box = Obstacle(model, 0.5, 0.5, g - SINK, 0.3)

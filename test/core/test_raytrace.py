@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 from landing_zone.config import MapConfig
 from landing_zone.mapping.density_map import DensityMap
 from landing_zone.errors import InvalidCloudError
-from landing_zone.mapping.raytrace import COUNT_MAX, IntegrationStats
+from landing_zone.mapping.rays import IntegrationStats
+from landing_zone.mapping.raytrace import COUNT_MAX
 
 VS = 0.25  # a power of two, so that world / voxel_size is exact and ties stay ties
 

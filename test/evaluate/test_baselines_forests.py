@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from sklearn.metrics import roc_auc_score
 
-from landing_zone.tools.evaluate.baselines import (BowForest, PlaneResiduals, RawForest, make_baselines)
+from landing_zone.tools.evaluate.baselines import (BowForest, PlaneResiduals, RawForest,
+                                                   make_baselines)
 from landing_zone.tools.evaluate.baselines.toy import boxes_and_flats
 from landing_zone.errors import DatasetError, ModelError
 

@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from landing_zone.tools.learn.calibration import (binary_nll, expected_calibration_error,
-                                            fit_temperature, reliability)
+                                                  fit_temperature, reliability)
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.tools.evaluate.roc import (evaluate_methods, evaluate_scenes, markdown_table,
-                                         results_json)
+from landing_zone.tools.evaluate.methods import evaluate_methods
+from landing_zone.tools.evaluate.roc import evaluate_scenes, markdown_table, results_json
 from landing_zone.tools.evaluate.figures import class_models, confident_mistakes
 from landing_zone.judging.inference import predict
 from landing_zone.judging.net import SafetyNet, SafetyNetConfig

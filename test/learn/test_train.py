@@ -15,7 +15,8 @@ from landing_zone.judging.patches import scene_to_input
 from landing_zone.tools.learn.samples import AugmentedVolumes, EpochSampler, cut_context, voxelize
 from landing_zone.tools.learn.scenes import ScenePack, split_scenes
 from landing_zone.tools.learn.state import log_path, state_path
-from landing_zone.tools.learn.train import TrainConfig, roc_auc, train
+from landing_zone.tools.learn.fitting import roc_auc
+from landing_zone.tools.learn.train import TrainConfig, train
 
 SMALL = 'C5-F8-P2-D32'
 
@@ -203,13 +204,13 @@ def calibrated_start(tmp_path, scenes):
     return start
 
 
-def test_fine_tuning_keeps_the_initial_calibration_guarded(tmp_path):
+def test_fine_tuning_keeps_the_initial_calibration_anchored(tmp_path):
     scenes = toy_scenes(12, seed=10)
     start = calibrated_start(tmp_path, scenes)
     out = tmp_path / 'site.safetensors'
     s = train(scenes, out, quick_config(lr=0.001), init=start, progress=False)
     net, meta = load_model(out)
-    assert s['calibration'] == 'guarded' and meta['calibration']['method'] == 'guarded'
+    assert s['calibration'] == 'anchored' and meta['calibration']['method'] == 'anchored'
     assert net.temperature == pytest.approx(0.8) and net.offset <= -0.5
     assert meta['calibration']['initial_model'] == str(start)
     refit = train(scenes, tmp_path / 'r.safetensors', quick_config(lr=0.001, calibration='refit'),
@@ -218,36 +219,36 @@ def test_fine_tuning_keeps_the_initial_calibration_guarded(tmp_path):
     assert 'calibration' not in read_metadata(tmp_path / 'r.safetensors')
 
 
-def test_the_guard_also_holds_on_guard_sets_never_trained_on(tmp_path):
+def test_the_anchor_also_holds_on_anchor_sets_never_trained_on(tmp_path):
     scenes = toy_scenes(12, seed=10)
     start = calibrated_start(tmp_path, scenes)
     out = tmp_path / 'site.safetensors'
-    guard_scenes = toy_scenes(10, seed=21)
+    anchor_scenes = toy_scenes(10, seed=21)
     train(scenes, out, quick_config(lr=0.001), init=start, progress=False,
-          guard_data=[guard_scenes])
+          anchor_data=[anchor_scenes])
     net, meta = load_model(out)
     cal = meta['calibration']
-    assert 'guard set' in cal['fitted_on']
+    assert 'anchor set' in cal['fitted_on']
     groups = {e['source']: e for e in cal['groups']}
     assert set(groups) == {'list'}  # a scene sequence is named by its type
     held = [e for e in cal['groups'] if e['group'] == 1]
-    assert len(held) == 1 and held[0]['obstacles'] == sum(s.label == 0 for s in guard_scenes)
+    assert len(held) == 1 and held[0]['obstacles'] == sum(s.label == 0 for s in anchor_scenes)
     for e in cal['groups']:
         assert net.offset <= e['offset_limit']
         for t in ('0.5', '0.9'):
-            assert e['passed'][t]['guarded'] <= e['passed'][t]['initial']
+            assert e['passed'][t]['anchored'] <= e['passed'][t]['initial']
     assert net.offset == min([-0.5] + [e['offset_limit'] for e in cal['groups']])
 
 
-def test_guard_data_must_be_held_out_and_need_the_guarded_calibration(tmp_path):
+def test_anchor_data_must_be_held_out_and_need_the_anchored_calibration(tmp_path):
     scenes = toy_scenes(8, seed=10)
-    with pytest.raises(ConfigError, match='guarded calibration'):
+    with pytest.raises(ConfigError, match='anchored calibration'):
         train(scenes, tmp_path / 'm.safetensors', quick_config(), progress=False,
-              guard_data=[toy_scenes(4, seed=3)])
+              anchor_data=[toy_scenes(4, seed=3)])
     d = tmp_path / 'synth3_some'
-    with pytest.raises(ConfigError, match='both training data and guard data'):
+    with pytest.raises(ConfigError, match='both training data and anchor data'):
         train([d, tmp_path / 'hybrid'], tmp_path / 'm.safetensors', quick_config(),
-              init=tmp_path / 'start.safetensors', guard_data=[d], progress=False)
+              init=tmp_path / 'start.safetensors', anchor_data=[d], progress=False)
 
 
 def test_an_ensemble_is_fine_tuned_as_one_net_and_stays_an_ensemble(tmp_path):
@@ -266,7 +267,7 @@ def test_an_ensemble_is_fine_tuned_as_one_net_and_stays_an_ensemble(tmp_path):
     train(scenes, out, quick_config(lr=0.001), init=ens, progress=False)
     tuned, tmeta = load_model(out)
     assert isinstance(tuned, SafetyEnsemble) and tuned.size == 2
-    assert tmeta['calibration']['method'] == 'guarded' and tuned.temperature == pytest.approx(0.9)
+    assert tmeta['calibration']['method'] == 'anchored' and tuned.temperature == pytest.approx(0.9)
     # every member moved
     for k in range(2):
         before = start.members[k].state_dict()
@@ -290,10 +291,10 @@ def test_the_leniency_penalty_acts_only_when_fine_tuning(tmp_path):
     assert same_weights(weights(tmp_path / 'c.safetensors'), weights(tmp_path / 'd.safetensors'))
 
 
-def test_a_guarded_calibration_needs_an_initial_model(tmp_path):
+def test_a_anchored_calibration_needs_an_initial_model(tmp_path):
     with pytest.raises(ConfigError, match='--init'):
         train(toy_scenes(8, seed=12), tmp_path / 'm.safetensors',
-              quick_config(calibration='guarded'), progress=False)
+              quick_config(calibration='anchored'), progress=False)
     with pytest.raises(ConfigError, match='calibration must be'):
         quick_config(calibration='platt').validate()
 

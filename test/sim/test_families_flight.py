@@ -15,7 +15,7 @@ from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.insert import insert_obstacles
 from landing_zone.tools.sim.families import FAMILIES, TEST_BASE, TEST_FAMILIES
 from landing_zone.tools.sim.flight import flight_config, simulate_flight
-from landing_zone.tools.sim.obstacles import get_model
+from landing_zone.tools.sim.library import get_model
 
 REPO = Path(__file__).resolve().parents[2]
 SMALL = dict(size=8.0, height=5.0, target_density=400.0, angular_resolution=0.25,

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import SimulationError
-from landing_zone.tools.sim.flight import (SCAN, VEGETATION, FlightConfig, _quaternion, flight_config,
-                                     simulate_flight)
+from landing_zone.tools.sim.flight import flight_config, simulate_flight
+from landing_zone.tools.sim.flight_settings import SCAN, VEGETATION, FlightConfig
+from landing_zone.tools.sim.flight_path import quaternion
 from landing_zone.tools.sim.grass import (GrassConfig, VegetationConfig, bush_mesh, clumped_bases,
-                                    grass_mesh, place_bushes, vegetation_blades)
+                                          grass_mesh, place_bushes, vegetation_blades)
 from landing_zone.tools.sim.scene import PatchConfig, simulate_patch
 from landing_zone.tools.sim.sensor import ScanPattern, SensorConfig, mount_frame
 from landing_zone.tools.sim.terrain import Terrain, TerrainConfig
@@ -315,7 +316,7 @@ def test_scan_pattern_geometry():
     # The pose's quaternion and the patterns' mount agree: x is the pattern's centre.
     from scipy.spatial.transform import Rotation
     for heading in (0.0, 0.7, np.pi):
-        q = _quaternion(np.array([heading]), np.radians(30.0))[0]
+        q = quaternion(np.array([heading]), np.radians(30.0))[0]
         np.testing.assert_allclose(Rotation.from_quat(q).as_matrix(),
                                    mount_frame(np.radians(30.0), heading)[0], atol=1e-12)
     spin = ScanPattern(kind='spinning', beams=16, beam_fov=30.0, spin_rate=10.0)

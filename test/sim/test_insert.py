@@ -22,7 +22,8 @@ from landing_zone.tools.sim.insert import insert_obstacles
 from landing_zone.tools.sim.placement import ground_height
 from landing_zone.tools.sim.recorded import read_flight
 from landing_zone.tools.sim.flight import flight_config, simulate_flight
-from landing_zone.tools.sim.obstacles import Obstacle, get_model
+from landing_zone.tools.sim.library import get_model
+from landing_zone.tools.sim.obstacles import Obstacle
 from msg_adapters import MessageTypes, make_header, stamp_to_ns
 from msg_adapters.pointcloud import cloud_to_structured, make_cloud, points_to_structured
 from test_replay import sensor_at, write_flight

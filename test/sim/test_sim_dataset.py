@@ -16,7 +16,7 @@ from landing_zone.tools.sim import sweeps as sweeps_mod
 from landing_zone.tools.sim.dataset import simulate_dataset
 from landing_zone.tools.sim.shards import SceneDataset
 from landing_zone.tools.sim.sweeps import SWEEPS, scene_plan, scene_rng, select_scenes
-from landing_zone.tools.sim.obstacles import get_model, models
+from landing_zone.tools.sim.library import get_model, models
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -11,12 +11,12 @@ import pytest
 import trimesh
 
 from landing_zone.errors import SimulationError
-from landing_zone.tools.sim.families import (FAMILIES, MAX_ACROSS, MAX_HEIGHT, MAX_RADIUS,
-                                       MIN_VISIBLE, TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES,
-                                       draw_instance, get_family, instance, instance_group,
-                                       instance_model, is_instance_name, parse_families)
+from landing_zone.tools.sim.families import (FAMILIES, TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES,
+                                             draw_instance, get_family, instance, instance_group,
+                                             instance_model, is_instance_name, parse_families)
+from landing_zone.tools.sim.family_shape import MAX_ACROSS, MAX_HEIGHT, MAX_RADIUS, MIN_VISIBLE
 from landing_zone.tools.sim.mesh import OBSTACLE, Mesh
-from landing_zone.tools.sim.obstacles import get_model, library
+from landing_zone.tools.sim.library import get_model, library
 from landing_zone.tools.sim.raycast import RayCaster
 
 # A few train and a few test instances of every family: enough to meet each pose often.

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import BagError, SimulationError
-from landing_zone.tools.sim.flight import (START_TIME_NS, FlightConfig, polygon_overlaps_square,
-                                     simulate_flight)
-from landing_zone.tools.sim.obstacles import Obstacle, get_model
+from landing_zone.tools.sim.flight import START_TIME_NS, simulate_flight
+from landing_zone.tools.sim.flight_settings import FlightConfig
+from landing_zone.tools.sim.flight_site import polygon_overlaps_square
+from landing_zone.tools.sim.library import get_model
+from landing_zone.tools.sim.obstacles import Obstacle
 from landing_zone.tools.sim.sensor import SensorConfig
 
 REPO = Path(__file__).resolve().parents[2]

@@ -12,7 +12,8 @@ from landing_zone.tools.sim.recorded import read_flight
 from landing_zone.tools.sim.shards import SceneDataset
 from landing_zone.tools.sim.flight import flight_config, simulate_flight
 from landing_zone.tools.sim.hybrid import column_rays, simulate_hybrid
-from landing_zone.tools.sim.obstacles import Obstacle, get_model, models
+from landing_zone.tools.sim.library import get_model, models
+from landing_zone.tools.sim.obstacles import Obstacle
 from landing_zone.judging.patches import scene_to_input
 from test_insert import slab_hits
 

@@ -11,8 +11,9 @@ from scipy.spatial import cKDTree
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.grass import GrassConfig, grass_mesh, points_in_polygon
 from landing_zone.tools.sim.mesh import GRASS, GROUND, OBSTACLE, Mesh
-from landing_zone.tools.sim.obstacles import (MAX_ACROSS, MAX_HEIGHT, MIN_HEIGHT, get_model, library,
-                                        models, place)
+from landing_zone.tools.sim.library import (MAX_ACROSS, MAX_HEIGHT, MIN_HEIGHT, get_model, library,
+                                            models)
+from landing_zone.tools.sim.obstacles import place
 from landing_zone.tools.sim.raycast import RayCaster, embree_library_path
 from landing_zone.tools.sim.scene import PatchConfig, simulate_patch, view_region
 from landing_zone.tools.sim.sensor import SensorConfig, ray_box_interval

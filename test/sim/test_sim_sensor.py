@@ -9,11 +9,12 @@ import pytest
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.grass import GrassConfig
 from landing_zone.tools.sim.mesh import GRASS, GROUND, OBSTACLE
-from landing_zone.tools.sim.obstacles import get_model, place
+from landing_zone.tools.sim.library import get_model
+from landing_zone.tools.sim.obstacles import place
 from landing_zone.tools.sim.scene import PatchConfig, World, simulate_patch
-from landing_zone.tools.sim.sensor import (BrownianWalk, SensorConfig, direction_angles,
-                                     hover_scan, path_scan, ray_box_interval,
-                                     scan_directions)
+from landing_zone.tools.sim.hover import hover_scan
+from landing_zone.tools.sim.sensor import (BrownianWalk, SensorConfig, direction_angles, path_scan,
+                                           ray_box_interval, scan_directions)
 from landing_zone.tools.sim.terrain import Terrain, TerrainConfig
 
 AOI = (np.array([-0.5, -0.5]), np.array([0.5, 0.5]))

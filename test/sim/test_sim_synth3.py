@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from landing_zone.errors import ConfigError, DatasetError
-from landing_zone.tools.evaluate.lofo import (family_figures, family_folds, family_report, hold_out,
-                                     markdown_families, parse_hold_out, scene_families)
+from landing_zone.tools.evaluate.lofo import (family_figures, family_folds, family_report,
+                                              hold_out, markdown_families, parse_hold_out,
+                                              scene_families)
 from landing_zone.tools.sim.dataset import simulate_dataset
 from landing_zone.tools.sim.shards import SceneDataset
 from landing_zone.tools.sim.families import TEST_BASE, TEST_FAMILIES, TRAIN_FAMILIES
-from landing_zone.tools.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of, scene_plan,
-                                     select_scenes, synth3_train_families)
+from landing_zone.tools.sim.synth3 import (SENSOR_FAMILIES, SYNTH3_FAMILIES, families_of,
+                                           scene_plan, select_scenes, synth3_train_families)
 from landing_zone.tools.sim.vegetation import SYNTH3_VEGETATION
 
 
@@ -334,7 +335,7 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
     default one, and refuses to be resumed with another share."""
     from landing_zone.errors import SimulationError
     from landing_zone.tools.sim.families import instance
-    from landing_zone.tools.sim.flight import polygon_overlaps_square
+    from landing_zone.tools.sim.flight_site import polygon_overlaps_square
     from landing_zone.tools.sim.obstacles import Obstacle
     from landing_zone.tools.sim.synth3 import EDGE_GAP, EDGE_REACH
 
@@ -389,7 +390,8 @@ def test_edge_pairs_put_the_obstacle_just_beyond_or_just_inside_the_tile(tmp_pat
     with pytest.raises(DatasetError):
         simulate_dataset('synth3', root, scenes=4, workers=1, seed=3, shard_size=2,
                          progress=False, edge=1.0)
-    from landing_zone.tools.sim.obstacles import at_edge, get_model
+    from landing_zone.tools.sim.library import get_model
+    from landing_zone.tools.sim.obstacles import at_edge
     with pytest.raises(SimulationError, match='either reach or gap'):
         at_edge(get_model('box'), 0.0, 0, 0.0, 0.5, 0.1)
     with pytest.raises(SimulationError, match='--edge must be a share'):

@@ -11,8 +11,8 @@ from landing_zone.tools.sim.mesh import GRASS, GROUND, Mesh
 from landing_zone.tools.sim.scene import World, view_region
 from landing_zone.tools.sim.terrain import SlopedTerrain, Terrain, TerrainConfig
 from landing_zone.tools.sim.vegetation import (MAX_VEGETATION_HEIGHT, SAFE_SHRUB_HEIGHT,
-                                         VEGETATION_FAMILIES, build_vegetation,
-                                         draw_vegetation, hide_obstacle, vegetation_top)
+                                               VEGETATION_FAMILIES, build_vegetation,
+                                               draw_vegetation, hide_obstacle, vegetation_top)
 
 SQUARE = np.array([[-1.5, -1.5], [1.5, -1.5], [1.5, 1.5], [-1.5, 1.5]])
 TILE = (np.array([-0.5, -0.5]), np.array([0.5, 0.5]))

@@ -1,4 +1,5 @@
-"""The engines (landing_zone/tools/engines.py): simulate, evaluate-flights, train-fleet and tune give
+"""The engines (landing_zone/tools/engines.py): simulate, evaluate-flights, train-fleet and tune
+give
 the same outputs as processes here and as Ray tasks, whatever the number of workers; a Ray
 worker killed mid-task is retried and the output is complete and identical; without Ray,
 ``--engine ray`` says in one line how to get it.

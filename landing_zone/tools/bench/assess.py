@@ -40,8 +40,9 @@ the cores are shared.
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -186,6 +187,76 @@ def _ensemble_rows(net: SafetyNet | SafetyEnsemble, pooled: np.ndarray, strip_ti
     return out
 
 
+class _Scene:
+    """The benchmark's map (the integrate scene) and the stages the assessor runs on it, each
+    one call on the counts, as the assessor makes it."""
+
+    def __init__(self, batches: int, seed: int) -> None:
+        self.dmap = DensityMap(MapConfig())
+        for pts in make_batches(batches, seed):
+            self.dmap.integrate(pts, SENSOR)
+        self.tcfg = TileConfig()
+        self.tv = tile_voxels(self.dmap.voxel_size, self.tcfg)
+        self.gcfg = GuardConfig()
+        self.scfg = SiteConfig()
+        self.buffers = CountBuffers()
+        self.batch = extract_tiles(self.dmap, self.tcfg, buffers=self.buffers)
+        index = self.batch.index
+        self.nxy = tuple(int(v) for v in index.max(axis=0) - index.min(axis=0) + 1)
+        self.origin = tuple(int(v) for v in index.min(axis=0))
+
+    def counts(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # the assessor hands the guard and the ground fit the counts it read for the tiler;
+        # read them here too
+        dmap, tv, pad = self.dmap, self.tv, self.tcfg.padding
+        lo = np.concatenate([index.min(axis=0) * tv - pad, dmap.lo[2:]])
+        hi = np.concatenate([(index.max(axis=0) + 1) * tv + pad, dmap.hi[2:]])
+        lo = np.clip(lo, dmap.lo, dmap.hi)
+        hi = np.clip(hi, lo, dmap.hi)
+        h, p = dmap.counts(lo, hi - lo)
+        return h, p, lo
+
+    def ground(self, index: np.ndarray, read: Any = None) -> Any:
+        # the assessor fits on the counts it read for the tiler: ``read`` given, no read here
+        h, p, lo = self.counts(index) if read is None else read
+        return fit_ground(h, p, lo, self.dmap.voxel_size, index, self.tv,
+                          self.tcfg.occupied_density)
+
+    def guard(self, b: Any, g: Any, read: Any) -> None:
+        # as the assessor runs it: on the counts it read for the tiler, above the ground planes
+        guard_tiles(read, self.dmap.voxel_size, b, g, self.tv, self.gcfg)
+
+    def sites(self, g: Any) -> None:
+        # every pass chooses the sites afresh over the whole grid
+        nxy = self.nxy
+        grid = GroundGrids(g.plane_z.reshape(nxy), g.grad.reshape(nxy + (2,)),
+                           g.clearance.reshape(nxy), g.overhead.reshape(nxy))
+        p = np.full(nxy, 0.9)
+        cand = evaluate_candidates(p, p, self.origin, self.scfg, self.tcfg.tile_size, grid)
+        find_sites(p, p, self.origin, self.scfg, self.tcfg.tile_size, ground=grid,
+                   candidates=cand)
+
+    def cut(self, index: np.ndarray, read: Any, g: Any, pool: int) -> Any:
+        # the assessor's cut: on the counts it read, the cubes aligned to the tiles' ground
+        # planes (tiles.align_to_ground), only the valid tiles' built, pooled for the net
+        return tiles_from_counts(*read, self.dmap.voxel_size, self.tcfg, index,
+                                 g if self.tcfg.align_to_ground else None,
+                                 invalid_inputs=False, pool=pool)
+
+
+@dataclass
+class _Stages:
+    """Seconds of the stages beside the network on the whole map, and what they made."""
+
+    cut: float  # the assessor's cut, pooled for the shipped net
+    cut_unpooled: float
+    ground: float
+    guard: float
+    sites: float
+    grd: Any  # the ground planes of every tile
+    pooled: np.ndarray  # the inputs the tiler pooled
+
+
 def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
     """Measure and print the assessment benchmark; return its figures. ``models``: candidate
     model files, each timed as the shipped one is (map and strip, with its OOD reference)."""
@@ -195,84 +266,61 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
     device = 'cuda' if torch.cuda.is_available() else 'cpu'
     results: dict = {'torch_threads': torch.get_num_threads(), 'bf16_native': bf16_supported(),
                      'device': device}
-    dmap = DensityMap(MapConfig())
-    for pts in make_batches(batches, seed):
-        dmap.integrate(pts, SENSOR)
-    tcfg = TileConfig()
+    sc = _Scene(batches, seed)
     print(f'map: 20 x 20 x 4 m at 5 cm, {batches} batches of 10,000 returns (the integrate '
           f'scene); torch threads {torch.get_num_threads()}, native bf16: {bf16_supported()}')
+    # extracting every tile, as extract_tiles does it
+    _extraction(sc, results, repeats)
+    # the stages beside the network: the assessor's cut, ground planes, guard, sites
+    st = _stages(sc, results, repeats)
+    # the nets, each with its OOD signal where it flies with one
+    entries: list[tuple[str, SafetyNet, str, bool, Path | None]] = []
+    for spec in (DEFAULT_SPEC, PAPER_SPEC):
+        net, label, path = _model(spec)
+        entries.append((spec, net, label, spec == DEFAULT_SPEC, path))
+    entries += [(label, net, label, True, Path(m)) for (net, label), m in zip(candidates, models)]
+    nets, refs = _networks(sc, st, entries, results, repeats, device)
+    # steady state: a sensor sweeps a strip; only the tiles its rays touched are re-assessed
+    wide = _strip(sc, st, nets, refs, results, repeats, seed)
+    # ensembles of the shipped architecture: what each member adds to a map and to a strip
+    results['ensemble_s'] = _ensemble_rows(nets[DEFAULT_SPEC], st.pooled, len(wide), repeats)
+    # training and data, for reference
+    _training(results, seed)
+    return results
 
-    buffers = CountBuffers()
+
+def _extraction(sc: _Scene, results: dict, repeats: int) -> None:
+    dmap, tcfg, buffers = sc.dmap, sc.tcfg, sc.buffers
     ext_med, ext_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers), repeats)
     cnt_med, _ = _times(dmap.counts, repeats)
-    batch = extract_tiles(dmap, tcfg, buffers=buffers)
     # what the assessor cuts for a net that opens with a 2^3 pool (the shipped one)
     extp_med, extp_best = _times(lambda: extract_tiles(dmap, tcfg, buffers=buffers, pool=2),
                                  repeats)
-    n = len(batch)
-    results.update(tiles=n, valid_tiles=int(batch.valid.sum()), extract_s=ext_med,
+    n, valid = len(sc.batch), int(sc.batch.valid.sum())
+    results.update(tiles=n, valid_tiles=valid, extract_s=ext_med,
                    extract_pooled_s=extp_med, extract_counts_s=cnt_med)
-    print(f'extract {n} tiles ({int(batch.valid.sum())} valid): {ext_med * 1e3:.1f} ms '
+    print(f'extract {n} tiles ({valid} valid): {ext_med * 1e3:.1f} ms '
           f'({ext_best * 1e3:.1f}); of which reading the counts {cnt_med * 1e3:.1f} ms; '
           f'pooled 2^3 as the shipped net reads them: {extp_med * 1e3:.1f} ms '
           f'({extp_best * 1e3:.1f})')
 
-    tv = tile_voxels(dmap.voxel_size, tcfg)
-    gcfg = GuardConfig()
 
-    def counts(index):
-        # the assessor hands the guard and the ground fit the counts it read for the tiler;
-        # read them here too
-        lo = np.concatenate([index.min(axis=0) * tv - tcfg.padding, dmap.lo[2:]])
-        hi = np.concatenate([(index.max(axis=0) + 1) * tv + tcfg.padding, dmap.hi[2:]])
-        lo = np.clip(lo, dmap.lo, dmap.hi)
-        hi = np.clip(hi, lo, dmap.hi)
-        h, p = dmap.counts(lo, hi - lo)
-        return h, p, lo
-
-    def ground(index, read=None):
-        # the assessor fits on the counts it read for the tiler: ``read`` given, no read here
-        h, p, lo = counts(index) if read is None else read
-        return fit_ground(h, p, lo, dmap.voxel_size, index, tv, tcfg.occupied_density)
-
-    def guard(b, g, read) -> None:
-        # as the assessor runs it: on the counts it read for the tiler, above the ground planes
-        guard_tiles(read, dmap.voxel_size, b, g, tv, gcfg)
-
-    scfg = SiteConfig()
-    nxy = tuple(int(v) for v in batch.index.max(axis=0) - batch.index.min(axis=0) + 1)
-    origin = tuple(int(v) for v in batch.index.min(axis=0))
-
-    def sites(g) -> None:
-        # every pass chooses the sites afresh over the whole grid
-        grid = GroundGrids(g.plane_z.reshape(nxy), g.grad.reshape(nxy + (2,)),
-                           g.clearance.reshape(nxy), g.overhead.reshape(nxy))
-        p = np.full(nxy, 0.9)
-        cand = evaluate_candidates(p, p, origin, scfg, tcfg.tile_size, grid)
-        find_sites(p, p, origin, scfg, tcfg.tile_size, ground=grid, candidates=cand)
-
-    grd = ground(batch.index)
-    read = counts(batch.index)
-    ground_med, ground_best = _times(lambda: ground(batch.index, read), repeats)
-
-    def cut(index, read, g, pool):
-        # the assessor's cut: on the counts it read, the cubes aligned to the tiles' ground
-        # planes (tiles.align_to_ground), only the valid tiles' built, pooled for the net
-        return tiles_from_counts(*read, dmap.voxel_size, tcfg, index,
-                                 g if tcfg.align_to_ground else None, invalid_inputs=False,
-                                 pool=pool)
-
+def _stages(sc: _Scene, results: dict, repeats: int) -> _Stages:
+    index, n, tcfg, nxy = sc.batch.index, len(sc.batch), sc.tcfg, sc.nxy
+    grd = sc.ground(index)
+    read = sc.counts(index)
+    ground_med, ground_best = _times(lambda: sc.ground(index, read), repeats)
     # what the assessor cuts for the shipped net (its inputs below): counts read, then the cut
-    cut_med, cut_best = _times(lambda: cut(batch.index, counts(batch.index), grd, 2), repeats)
-    cut1_med, _ = _times(lambda: cut(batch.index, counts(batch.index), grd, 1), repeats)
-    pooled = cut(batch.index, read, grd, 2).inputs
+    cut_med, cut_best = _times(lambda: sc.cut(index, sc.counts(index), grd, 2), repeats)
+    cut1_med, _ = _times(lambda: sc.cut(index, sc.counts(index), grd, 1), repeats)
+    pooled = sc.cut(index, read, grd, 2).inputs
     results.update(extract_assessor_s=cut_med, extract_assessor_unpooled_s=cut1_med)
     aligned = 'aligned to the ground planes, ' if tcfg.align_to_ground else ''
     print(f'the assessor\'s cut ({aligned}valid tiles only, counts read included): pooled '
           f'{cut_med * 1e3:.1f} ms '
           f'({cut_best * 1e3:.1f}), unpooled {cut1_med * 1e3:.1f} ms')
-    guard_med, guard_best = _times(lambda: guard(batch, grd, read), repeats)
-    sites_med, sites_best = _times(lambda: sites(grd), repeats)
+    guard_med, guard_best = _times(lambda: sc.guard(sc.batch, grd, read), repeats)
+    sites_med, sites_best = _times(lambda: sc.sites(grd), repeats)
     results.update(ground_s=ground_med, guard_s=guard_med, sites_s=sites_med)
     print(f'ground planes of the {n} tiles (slope, roughness, clearance; on the counts the '
           f'tiler read): {ground_med * 1e3:.1f} ms ({ground_best * 1e3:.1f})')
@@ -280,17 +328,20 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
           f'{guard_med * 1e3:.1f} ms ({guard_best * 1e3:.1f})')
     print(f'landing-site candidates, limits and reasons over the {nxy[0]} x {nxy[1]} grid: '
           f'{sites_med * 1e3:.1f} ms ({sites_best * 1e3:.1f})')
+    return _Stages(cut_med, cut1_med, ground_med, guard_med, sites_med, grd, pooled)
 
-    nets = {}
+
+def _networks(sc: _Scene, st: _Stages, entries: list[tuple[str, SafetyNet, str, bool,
+                                                           Path | None]],
+              results: dict, repeats: int, device: str
+              ) -> tuple[dict[str, SafetyNet], dict[str, FeatureReference]]:
+    """Each net on the map's tiles per mode; the full map's seconds with its best mode. Entries:
+    (key, net, label, whether it flies with an OOD signal, the file whose reference that is;
+    None: a random one of its size). The shipped net and the candidates judge with their OOD
+    signal, the paper's net without one."""
+    batch, n, pooled = sc.batch, len(sc.batch), st.pooled
+    nets: dict[str, SafetyNet] = {}
     refs: dict[str, FeatureReference] = {}
-    # (key, net, label, whether it flies with an OOD signal, the file whose reference that is;
-    # None: a random one of its size). The shipped net and the candidates judge with their OOD
-    # signal, the paper's net without one.
-    entries: list[tuple[str, SafetyNet, str, bool, Path | None]] = []
-    for spec in (DEFAULT_SPEC, PAPER_SPEC):
-        net, label, path = _model(spec)
-        entries.append((spec, net, label, spec == DEFAULT_SPEC, path))
-    entries += [(label, net, label, True, Path(m)) for (net, label), m in zip(candidates, models)]
     oods: dict[str, dict] = {}
     for spec, net, label, with_ood, model_file in entries:
         if device == 'cuda':
@@ -314,7 +365,7 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
             judged += ' + OOD'
             oods[spec] = {'reference': ref_label, 'rows': int(len(ref.features)),
                           'distance_s': dist_s, 'network_with_ood_s': net_s}
-        full = (cut_med if pool else cut1_med) + ground_med + guard_med + sites_med + net_s
+        full = (st.cut if pool else st.cut_unpooled) + st.ground + st.guard + st.sites + net_s
         results[spec] = {
             'label': label, 'mmac_per_tile': net.flops() / 1e6,
             'network_s': {name: med for name, med, _ in rows},
@@ -332,13 +383,18 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
         print(f'  full map (extraction + ground + guard + sites + {judged}): {full:.2f} s; '
               f'target <= {TARGET_MAP_S} s {verdict}; aim {AIM_MAP_S} s; ms per tile '
               f'{best_row[1] / n * 1e3:.2f} (target <= {TARGET_MS_PER_TILE:.0f})')
-
     results['ood'] = oods[DEFAULT_SPEC]
     for spec in oods:
         if spec != DEFAULT_SPEC:
             results[spec]['ood'] = oods[spec]
+    return nets, refs
 
-    # steady state: a sensor sweeps a strip; only the tiles its rays touched are re-assessed
+
+def _strip(sc: _Scene, st: _Stages, nets: dict[str, SafetyNet],
+           refs: dict[str, FeatureReference], results: dict, repeats: int, seed: int
+           ) -> np.ndarray:
+    """Re-assessing the tiles a strip of returns touched, with their neighbours; returns them."""
+    dmap = sc.dmap
     dmap.pop_dirty()
     pts = make_batches(1, seed + 1000, batch=70_000)[0]
     strip = pts[(pts[:, 0] >= 2.0) & (pts[:, 0] < 5.0)]
@@ -346,7 +402,7 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
     dirty = dmap.pop_dirty()
     # inputs reach one tile into the neighbours (padding), so their inputs changed too
     wide = widen_tiles(dirty)
-    known = {tuple(k) for k in batch.index.tolist()}
+    known = {tuple(k) for k in sc.batch.index.tolist()}
     wide = np.array([k for k in wide.tolist() if tuple(k) in known], np.int64).reshape(-1, 2)
     results['dirty'] = {'returns': int(len(strip)), 'dirty_tiles': int(len(dirty)),
                         'tiles': int(len(wide))}
@@ -361,16 +417,16 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
 
         def update(predictor: Predictor = predictor, prec: str = prec, cl: bool = cl,
                    ref: FeatureReference | None = ref, pool: bool = pool) -> None:
-            sub_read = counts(wide)
-            g = ground(wide, sub_read)
-            sub = cut(wide, sub_read, g, 2 if pool else 1)
-            guard(sub, g, sub_read)
+            sub_read = sc.counts(wide)
+            g = sc.ground(wide, sub_read)
+            sub = sc.cut(wide, sub_read, g, 2 if pool else 1)
+            sc.guard(sub, g, sub_read)
             if ref is None:
                 predictor(sub.inputs, 256, prec, channels_last=cl, pooled=pool)
             else:  # as the assessor runs it: the features from the same pass
                 ref.ratio(predictor.with_features(sub.inputs, 256, prec, channels_last=cl,
                                                   pooled=pool)[1])
-            sites(grd)  # the grid's candidates are chosen afresh
+            sc.sites(st.grd)  # the grid's candidates are chosen afresh
 
         med, best = _times(update, repeats)
         predictor.close()
@@ -379,11 +435,10 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
         print(f'  {spec}{" + OOD" if ref is not None else ""}: {med:.3f} s ({best:.3f}) against '
               f'{results[spec]["map_s"]:.3f} s for the whole map; target <= {TARGET_STRIP_S} s '
               f'{verdict}')
+    return wide
 
-    # ensembles of the shipped architecture: what each member adds to a map and to a strip
-    results['ensemble_s'] = _ensemble_rows(nets[DEFAULT_SPEC], pooled, len(wide), repeats)
 
-    # training and data, for reference
+def _training(results: dict, seed: int) -> None:
     print('\ntraining step, batch 20, forward + backward + SGD, channels-last:')
     results['train_ms_per_sample'] = {}
     for spec in (DEFAULT_SPEC, PAPER_SPEC):
@@ -399,4 +454,3 @@ def run(batches: int = 30, seed: int = 0, models: tuple[str, ...] = ()) -> dict:
     results['pipeline_samples_per_s'] = 1.0 / med
     print(f'data pipeline (re-voxelize a 26k-return patch, one process): {1 / med:.0f} '
           f'samples/s ({1 / best:.0f})')
-    return results

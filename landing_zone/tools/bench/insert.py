@@ -17,7 +17,8 @@ from typing import Any
 def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
     """Time insert-obstacles on the demo flight; print a table, return the figures."""
     from landing_zone.tools.sim.insert import insert_obstacles
-    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import simulate_flight
+    from landing_zone.tools.sim.flight_settings import FlightConfig
 
     repeats = max(1, min(3, batches // 10))
     with tempfile.TemporaryDirectory(prefix='lz_bench_insert_') as tmpdir:

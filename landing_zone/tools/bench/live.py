@@ -50,7 +50,8 @@ REMAP = {'points': '/lidar/points', 'sensor_pose': '/lidar/pose'}
 
 
 def _flight(tmp: Path, seed: int) -> Path:
-    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import simulate_flight
+    from landing_zone.tools.sim.flight_settings import FlightConfig
     return simulate_flight(FlightConfig(seed=seed), tmp / 'site.mcap').bag
 
 

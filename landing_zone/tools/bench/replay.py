@@ -111,7 +111,8 @@ def _latency(bag: Path, model: Path) -> dict[str, Any]:
 def run(batches: int = 30, seed: int = 0) -> dict[str, Any]:
     """Run both measurements, print a table, return the figures."""
     from landing_zone.replay import replay
-    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import simulate_flight
+    from landing_zone.tools.sim.flight_settings import FlightConfig
 
     repeats = max(1, min(3, batches // 10))
     with tempfile.TemporaryDirectory(prefix='lz_bench_replay_') as tmpdir:

@@ -11,7 +11,7 @@ What must hold over a long run is that nothing drifts: the rate stays at the fli
 latency and the memory stay flat. The result is the least-squares slope of each against time
 (per minute) with its value at the start, over the samples after the first minute (start-up
 and the first pass over the site fill the map), and the accounting of every cloud published.
-The lead's reference run is ``--minutes 30`` on a quiet machine (docs/TOOLS.md).
+A reference run is ``--minutes 30`` on a quiet machine.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from landing_zone.tools.bench.livenode import (NodeProcess, Observer, bench_domain, dds_env,
-                                         load_line)
+                                               load_line)
 
 SAMPLE = 5.0  # seconds between samples
 WARM = 60.0  # seconds left out of the slopes (the first pass over the site fills the map)

@@ -18,7 +18,7 @@ import torch
 from landing_zone.judging.net import SafetyNet
 
 if TYPE_CHECKING:
-    from landing_zone.tools.evaluate.roc import MethodResult
+    from landing_zone.tools.evaluate.methods import MethodResult
 
 __all__ = ['confident_mistakes', 'class_models', 'plot_filters', 'plot_roc', 'plot_reliability',
            'look_inside']

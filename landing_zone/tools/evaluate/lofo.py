@@ -17,7 +17,7 @@ from on four axes: ``obstacle`` (the pair's obstacle family; a safe scene names 
   that held it out, or, for the test families, any model trained on synth3's train split.
 
 A scene is one tile: "obstacle tiles at P(safe) >= 0.5" are the unsafe scenes of the family so
-judged; ECE uses the 15 bins of :mod:`landing_zone.tools.evaluate.roc`.
+judged; ECE uses the 15 bins of :mod:`landing_zone.tools.evaluate.methods`.
 """
 from __future__ import annotations
 
@@ -27,6 +27,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from landing_zone.errors import ConfigError, DatasetError
+from landing_zone.tools.evaluate.methods import ECE_BINS
+from landing_zone.tools.learn.calibration import expected_calibration_error
+from landing_zone.tools.sim.families import FAMILIES, TEST_FAMILIES
+from landing_zone.tools.sim.synth3 import SENSOR_FAMILIES, TERRAIN_FAMILIES, families_of, \
+    synth3_train_families
+from landing_zone.tools.sim.vegetation import SYNTH3_VEGETATION, VEGETATION_FAMILIES
 
 __all__ = ['AXES', 'parse_hold_out', 'scene_families', 'SceneSubset', 'hold_out',
            'dataset_names', 'family_folds', 'family_figures', 'family_report',
@@ -36,9 +42,6 @@ AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')
 
 
 def _known(axis: str) -> tuple[str, ...]:
-    from landing_zone.tools.sim.families import FAMILIES
-    from landing_zone.tools.sim.synth3 import SENSOR_FAMILIES, TERRAIN_FAMILIES
-    from landing_zone.tools.sim.vegetation import VEGETATION_FAMILIES
     return {'obstacle': tuple(FAMILIES), 'vegetation': VEGETATION_FAMILIES,
             'terrain': tuple(TERRAIN_FAMILIES), 'sensor': tuple(SENSOR_FAMILIES)}[axis]
 
@@ -81,8 +84,6 @@ def family_folds(folds: int, seed: int = 0,
     Raises:
         ConfigError: ``folds`` < 2 or more than an axis has families.
     """
-    from landing_zone.tools.sim.synth3 import synth3_train_families
-    from landing_zone.tools.sim.vegetation import SYNTH3_VEGETATION
     train = {'obstacle': synth3_train_families(), 'vegetation': SYNTH3_VEGETATION}
     out: list[list[str]] = [[] for _ in range(folds)]
     for k, axis in enumerate(axes):
@@ -182,9 +183,6 @@ def family_figures(p_safe: np.ndarray, labels: np.ndarray, probabilistic: bool =
                    ) -> dict[str, Any]:
     """AUC, ECE and the shares that matter for landing, of one family's scenes."""
     from sklearn.metrics import roc_auc_score
-
-    from landing_zone.tools.learn.calibration import expected_calibration_error
-    from landing_zone.tools.evaluate.roc import ECE_BINS
     p = np.asarray(p_safe, np.float64)
     y = np.asarray(labels, np.int64)
     unsafe, safe = y == 0, y == 1
@@ -214,7 +212,6 @@ def lofo_scores(rows: dict[str, dict[str, Any]], families: np.ndarray,
 
 
 def _families_of_params(params: Sequence[dict]) -> dict[str, np.ndarray]:
-    from landing_zone.tools.sim.synth3 import families_of
     try:
         rows = [families_of(p) for p in params]
     except (KeyError, TypeError) as err:
@@ -248,7 +245,6 @@ def family_report(results: Sequence[Any], params: Sequence[dict], labels: np.nda
         an axis whose family has a 'lofo' row by that row's model, so the shares pool the
         families (each scene judged by a model that never saw its family).
     """
-    from landing_zone.tools.sim.families import TEST_FAMILIES
     fams = _families_of_params(params)
     y = np.asarray(labels, np.int64)
     held_out = held_out or {}

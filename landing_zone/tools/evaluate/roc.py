@@ -5,12 +5,10 @@ Run::
     landing-zone evaluate --data data/synth2 --model model.safetensors --out-dir eval/
     landing-zone evaluate --data data/synth2 --baselines --json results.json
 
-Every method reads the same inputs, the test scenes re-voxelized by
-:func:`landing_zone.judging.patches.scene_to_input` without augmentation. A method is any object
-with a ``name``, ``score(inputs) -> (T,)`` (higher = safer) and optionally ``fit(train_inputs,
-train_labels)`` and ``probabilistic`` (its scores are P(safe), so an ECE is reported; without
-the attribute, scores that all lie in [0, 1] count as probabilities). The CNN and the baselines
-of :mod:`landing_zone.tools.evaluate.baselines` plug in alike.
+Every method (:mod:`landing_zone.tools.evaluate.methods`: the CNN, the baselines of
+:mod:`landing_zone.tools.evaluate.baselines` or any object with a ``name`` and a ``score``) reads
+the same inputs, the test scenes re-voxelized by
+:func:`landing_zone.judging.patches.scene_to_input` without augmentation.
 
 **Conventions.** "Safe" (label 1) is the positive class: the ROC plots the share of safe tiles
 accepted against the share of unsafe tiles accepted as the threshold on the score moves, and
@@ -30,131 +28,34 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
-import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Protocol, Sequence, runtime_checkable
+from typing import Any, Sequence
 
 import numpy as np
 
-from landing_zone.tools.learn.calibration import Reliability, reliability
-from landing_zone.config import MapConfig, TileConfig
-from landing_zone.errors import ConfigError, DatasetError
+from landing_zone.assessor import default_model_path
+from landing_zone.config import GuardConfig, MapConfig, TileConfig
+from landing_zone.errors import ConfigError, ModelError
 from landing_zone.judging.checkpoint import load_model
-from landing_zone.judging.inference import predict
-from landing_zone.judging.net import SafetyNet
+from landing_zone.judging.guard import guard_p_safe
+from landing_zone.tools.evaluate.baselines import VolumeGeometry, make_baselines
+from landing_zone.tools.evaluate.figures import look_inside, plot_reliability, plot_roc
+from landing_zone.tools.evaluate.lofo import family_report_for, markdown_families
+from landing_zone.tools.evaluate.methods import ECE_BINS, CNNMethod, MethodResult, \
+    evaluate_methods, measure
+from landing_zone.tools.evaluate.scene_guard import voxelize_guarded
+from landing_zone.tools.learn.samples import voxelize
+from landing_zone.tools.learn.scenes import ScenePack
+from landing_zone.tools.sim.shards import SceneDataset
 
-__all__ = ['Method', 'CNNMethod', 'MethodResult', 'evaluate_methods', 'markdown_table',
-           'results_json', 'scores_json', 'evaluate', 'evaluate_scenes']
-
-ECE_BINS = 15
-
-
-@runtime_checkable
-class Method(Protocol):
-    """What evaluation needs of a method (``fit`` and ``probabilistic`` are optional)."""
-
-    name: str
-
-    def score(self, inputs: Any) -> np.ndarray:
-        """Safety score per volume, higher = safer."""
-        ...
-
-
-class CNNMethod:
-    """The safety CNN as an evaluation method: scores are calibrated P(safe)."""
-
-    probabilistic = True
-
-    def __init__(self, model: SafetyNet, batch_size: int = 256, precision: str = 'auto'
-                 ) -> None:
-        self.model = model.eval()
-        self.name = f'CNN {model.spec}'
-        self.batch_size = batch_size
-        self.precision = precision
-
-    def score(self, inputs: Any) -> np.ndarray:
-        return predict(self.model, inputs, self.batch_size, self.precision)
-
-
-@dataclass
-class MethodResult:
-    """One method's figures on one split."""
-
-    name: str
-    scores: np.ndarray
-    auc: float
-    ece: float | None
-    ms_per_volume: float
-    fpr: np.ndarray
-    tpr: np.ndarray
-    reliability: Reliability | None
-
-
-def _is_probabilistic(method: Any, scores: np.ndarray) -> bool:
-    flag = getattr(method, 'probabilistic', None)
-    if flag is not None:
-        return bool(flag)
-    return bool(scores.size) and bool(np.all((scores >= 0) & (scores <= 1)))
-
-
-def evaluate_methods(methods: list[Any], inputs: Any, labels: np.ndarray,
-                     train_inputs: Any = None, train_labels: np.ndarray | None = None,
-                     progress: bool = False) -> list[MethodResult]:
-    """Fit (where a method can and training data is given), score and measure every method.
-
-    Args:
-        methods: objects with ``name`` and ``score`` (see :class:`Method`).
-        inputs: (T, 1, S, S, S) float32 test volumes.
-        labels: (T,) 1 safe, 0 unsafe.
-        train_inputs, train_labels: data for methods with ``fit``.
-
-    Raises:
-        DatasetError: labels of one class only, or a method returned the wrong number of scores.
-    """
-    y = np.asarray(labels).reshape(-1).astype(np.int64)
-    if y.size == 0 or y.min() == y.max():
-        raise DatasetError('evaluation needs safe and unsafe volumes')
-    out: list[MethodResult] = []
-    for m in methods:
-        if hasattr(m, 'fit') and train_inputs is not None:
-            if progress:
-                print(f'evaluate: fitting {m.name}', file=sys.stderr)
-            m.fit(train_inputs, train_labels)
-        if progress:
-            print(f'evaluate: scoring {m.name}', file=sys.stderr)
-        m.score(inputs[:2])  # warm up (compilation, inference copies) outside the timing
-        t0 = time.perf_counter()
-        scores = np.asarray(m.score(inputs), np.float64).reshape(-1)
-        ms = (time.perf_counter() - t0) * 1000.0 / len(y)
-        if scores.shape != y.shape or not np.all(np.isfinite(scores)):
-            raise DatasetError(f'{m.name} returned {scores.size} scores (finite: '
-                               f'{bool(np.all(np.isfinite(scores)))}) for {y.size} volumes')
-        out.append(measure(m.name, scores, y, ms, _is_probabilistic(m, scores)))
-    return out
-
-
-def measure(name: str, scores: np.ndarray, labels: np.ndarray, ms_per_volume: float,
-            probabilistic: bool) -> MethodResult:
-    """A method's figures from its scores: ROC, AUC and, for P(safe), the reliability
-    diagram and ECE."""
-    from sklearn.metrics import roc_auc_score, roc_curve
-
-    fpr, tpr, _ = roc_curve(labels, scores, pos_label=1)
-    auc = float(roc_auc_score(labels, scores))
-    rel = reliability(scores, labels, ECE_BINS) if probabilistic else None
-    return MethodResult(name, scores, auc, None if rel is None else rel.ece, ms_per_volume,
-                        fpr, tpr, rel)
+__all__ = ['markdown_table', 'results_json', 'scores_json', 'evaluate', 'evaluate_scenes']
 
 
 def _guarded(results: list[MethodResult], found: Any, y: np.ndarray) -> list[MethodResult]:
     """The CNN results with the assessor's guard (its findings ``found`` on the same scenes)
     applied to their P(safe), as on the robot: named '... + guard'. ms / volume stays the
     network's (what the guard costs on the robot: ``landing-zone bench assess``)."""
-    from landing_zone.config import GuardConfig
-    from landing_zone.judging.guard import guard_p_safe
-
     cfg = GuardConfig()
     return [measure(f'{r.name} + guard', guard_p_safe(r.scores, found, cfg).astype(np.float64),
                     y, r.ms_per_volume, True) for r in results]
@@ -222,8 +123,9 @@ def evaluate(data: str | os.PathLike,
         model: model file, or several (each its own row, e.g. both of the paper's nets, or a
             model before and after fine-tuning); default the shipped model (unless only
             baselines are asked for and none is shipped).
-        baselines: also evaluate :func:`landing_zone.tools.evaluate.baselines.make_baselines`, fitted on
-            up to ``fit_scenes`` scenes of the train split.
+        baselines: also evaluate
+            :func:`landing_zone.tools.evaluate.baselines.make_baselines`, fitted on up to
+            ``fit_scenes`` scenes of the train split.
         json_path: write RESULTS.json (docs/INTERFACES.md §3) here.
         out_dir: write table.md, the plots and the look inside here.
         split: 'test' (obstacle models never seen in training) or 'train'.
@@ -234,8 +136,8 @@ def evaluate(data: str | os.PathLike,
         precision: CNN inference precision ('auto', 'fp32', 'bf16').
         progress: progress and messages on stderr.
         by_family: also the figures per family and the leave-one-family-out table
-            (:mod:`landing_zone.tools.evaluate.lofo`; synth3 data): RESULTS.json gains 'families', the table
-            the family tables.
+            (:mod:`landing_zone.tools.evaluate.lofo`; synth3 data): RESULTS.json gains
+            'families', the table the family tables.
         scores_path: write every scene's score by every method here (:func:`scores_json`).
         guard: judge every CNN as the assessor does, its P(safe) capped where the guard
             (:mod:`landing_zone.judging.guard`, default configuration) finds opaque structure
@@ -244,13 +146,9 @@ def evaluate(data: str | os.PathLike,
     Returns:
         The RESULTS.json dictionary, plus 'table' (markdown).
     """
-    from landing_zone.tools.sim.shards import SceneDataset
-
     if split not in ('test', 'train'):
         raise ConfigError(f"split must be 'test' or 'train', got {split!r}")
     if model is None or (not isinstance(model, (str, os.PathLike)) and not list(model)):
-        from landing_zone.assessor import default_model_path
-        from landing_zone.errors import ModelError
         model = None
         try:
             model = default_model_path()
@@ -285,12 +183,58 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
             first model's (or the default) voxelization.
         baselines: add the paper's baselines, fitted on ``train_source``.
         train_source: scenes the fittable methods are fitted on.
-        extra_methods: more methods (see :class:`Method`) to evaluate after these.
+        extra_methods: more methods (see :class:`~landing_zone.tools.evaluate.methods.Method`)
+            to evaluate after these.
         Others: see :func:`evaluate`.
     """
-    from landing_zone.tools.learn.samples import voxelize
-    from landing_zone.tools.learn.scenes import ScenePack
+    # the methods: one CNN per model file, then the baselines and the extra methods
+    cnns, metas = _load_cnns(model, precision)
+    key0 = cnns[0][1] if cnns else _voxel_key({})
+    mcfg, tcfg = _configs(key0)
+    others = _other_methods(baselines, extra_methods, mcfg, tcfg, seed)
+    if not cnns and not others:
+        raise ConfigError('nothing to evaluate: give --model or --baselines')
+    # the scenes, re-voxelized once per voxelization the models ask for
+    pack = ScenePack.from_scenes(source, _even_subset(len(source), max_scenes), progress,
+                                 f'loading {split} scenes')
+    if workers:
+        pack.share_memory()
+    volumes = _Volumes(pack, split, guard, workers, progress)
+    inputs, labels, _ = volumes.get(key0)
+    x = inputs.numpy()
+    y = labels.numpy().astype(np.int64)
+    # fit the fittable methods on the train scenes
+    train_x, train_y = _train_volumes(train_source, others, fit_scenes, mcfg, tcfg, workers,
+                                      progress)
+    # score every method on the same volumes
+    results = []
+    for cnn, key in cnns:
+        res = evaluate_methods([cnn], volumes.get(key)[0].numpy(), y, progress=progress)
+        results += _guarded(res, volumes.get(key)[2], y) if guard else res
+    results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
+    # the table and RESULTS.json, per family on request
+    n, n_unsafe = len(y), int((y == 0).sum())
+    table = markdown_table(results, dataset, split, n, n_unsafe)
+    out = results_json(results, dataset, split, n, n_unsafe)
+    if by_family:
+        out['families'] = family_report_for(results, pack.params, y, metas)
+        table += '\n' + markdown_families(out['families'])
+    # write what was asked for
+    if json_path is not None:
+        _write_text(json_path, json.dumps(out, indent=1) + '\n')
+    if scores_path is not None:
+        doc = scores_json(results, pack.scene_ids.numpy(), y, dataset, split)
+        _write_text(scores_path, json.dumps(doc) + '\n')
+    if out_dir is not None:
+        _write_figures(Path(out_dir), table, results, cnns[0][0] if cnns else None, x, y, pack,
+                       mcfg, tcfg, f'{dataset} {split}: {n} volumes, {n_unsafe} unsafe')
+    return {**out, 'table': table}
 
+
+def _load_cnns(model: str | os.PathLike | Sequence[str | os.PathLike] | None, precision: str
+               ) -> tuple[list[tuple[CNNMethod, tuple]], list[dict[str, Any]]]:
+    """One CNN method per model file, each with the key of its voxelization, and the models'
+    metadata."""
     paths = [] if model is None else [model] if isinstance(model, (str, os.PathLike)) \
         else list(model)
     cnns: list[tuple[CNNMethod, tuple]] = []
@@ -300,85 +244,77 @@ def evaluate_scenes(source: Any, dataset: str, split: str,
         cnns.append((CNNMethod(net, precision=precision), _voxel_key(meta)))
         metas.append(meta)
     _unique_names([c for c, _ in cnns], paths)
-    key0 = cnns[0][1] if cnns else _voxel_key({})
-    mcfg, tcfg = _configs(key0)
-    tile_vox = int(round(tcfg.tile_size / mcfg.voxel_size))
+    return cnns, metas
+
+
+def _other_methods(baselines: bool, extra: list[Any] | None, mcfg: MapConfig,
+                   tcfg: TileConfig, seed: int) -> list[Any]:
+    """The baselines (on request) and the caller's extra methods."""
     others: list[Any] = []
     if baselines:
-        from landing_zone.tools.evaluate.baselines import VolumeGeometry, make_baselines
         geometry = VolumeGeometry(voxel_size=mcfg.voxel_size, tile_size=tcfg.tile_size,
                                   occupied_density=tcfg.occupied_density)
         others.extend(make_baselines(seed=seed, geometry=geometry))
-    others.extend(extra_methods or [])
-    if not cnns and not others:
-        raise ConfigError('nothing to evaluate: give --model or --baselines')
+    others.extend(extra or [])
+    return others
 
-    pack = ScenePack.from_scenes(source, _even_subset(len(source), max_scenes), progress,
-                                 f'loading {split} scenes')
-    if workers:
-        pack.share_memory()
-    volumes: dict[tuple, Any] = {}
 
-    def volumes_for(key: tuple) -> Any:  # (inputs, labels, the guard's findings or None)
-        if key not in volumes:
+class _Volumes:
+    """The scenes' input volumes, labels and (with ``guard``) the guard's findings, voxelized
+    once per voxelization key."""
+
+    def __init__(self, pack: ScenePack, split: str, guard: bool, workers: int,
+                 progress: bool) -> None:
+        self.pack, self.split, self.guard = pack, split, guard
+        self.workers, self.progress = workers, progress
+        self.cache: dict[tuple, Any] = {}
+
+    def get(self, key: tuple) -> Any:
+        if key not in self.cache:
             m, t = _configs(key)
-            desc = f'voxelizing {split}'
-            if guard:  # the guard's findings from the same read of each patch
-                from landing_zone.config import GuardConfig
-                from landing_zone.tools.evaluate.scene_guard import voxelize_guarded
-                volumes[key] = voxelize_guarded(pack, m, t, GuardConfig(), workers, progress,
-                                                desc + ' and guarding')
+            desc = f'voxelizing {self.split}'
+            if self.guard:  # the guard's findings from the same read of each patch
+                self.cache[key] = voxelize_guarded(self.pack, m, t, GuardConfig(), self.workers,
+                                                   self.progress, desc + ' and guarding')
             else:
-                volumes[key] = (*voxelize(pack, m, t, workers, progress, desc), None)
-        return volumes[key]
+                self.cache[key] = (*voxelize(self.pack, m, t, self.workers, self.progress,
+                                             desc), None)
+        return self.cache[key]
 
-    inputs, labels, _ = volumes_for(key0)
-    x = inputs.numpy()
-    y = labels.numpy().astype(np.int64)
-    train_x = train_y = None
-    if train_source is not None and any(hasattr(m, 'fit') for m in others):
-        tpack = ScenePack.from_scenes(train_source, _even_subset(len(train_source), fit_scenes),
-                                      progress, 'loading train scenes')
-        if workers:
-            tpack.share_memory()
-        ti, tl = voxelize(tpack, mcfg, tcfg, workers, progress, 'voxelizing train')
-        train_x, train_y = ti.numpy(), tl.numpy().astype(np.int64)
 
-    results = []
-    for cnn, key in cnns:
-        res = evaluate_methods([cnn], volumes_for(key)[0].numpy(), y, progress=progress)
-        results += _guarded(res, volumes_for(key)[2], y) if guard else res
-    results += evaluate_methods(others, x, y, train_x, train_y, progress) if others else []
-    cnn = cnns[0][0] if cnns else None
-    n, n_unsafe = len(y), int((y == 0).sum())
-    table = markdown_table(results, dataset, split, n, n_unsafe)
-    out = results_json(results, dataset, split, n, n_unsafe)
-    if by_family:
-        from landing_zone.tools.evaluate.lofo import family_report_for, markdown_families
-        out['families'] = family_report_for(results, pack.params, y, metas)
-        table += '\n' + markdown_families(out['families'])
-    if json_path is not None:
-        p = Path(json_path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(out, indent=1) + '\n', encoding='utf-8')
-    if scores_path is not None:
-        p = Path(scores_path)
-        p.parent.mkdir(parents=True, exist_ok=True)
-        doc = scores_json(results, pack.scene_ids.numpy(), y, dataset, split)
-        p.write_text(json.dumps(doc) + '\n', encoding='utf-8')
-    if out_dir is not None:
-        d = Path(out_dir)
-        d.mkdir(parents=True, exist_ok=True)
-        (d / 'table.md').write_text(table, encoding='utf-8')
-        from landing_zone.tools.evaluate.figures import look_inside, plot_reliability, plot_roc
+def _train_volumes(train_source: Any, others: list[Any], fit_scenes: int, mcfg: MapConfig,
+                   tcfg: TileConfig, workers: int, progress: bool
+                   ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Volumes and labels of up to ``fit_scenes`` train scenes, where a method can be fitted."""
+    if train_source is None or not any(hasattr(m, 'fit') for m in others):
+        return None, None
+    tpack = ScenePack.from_scenes(train_source, _even_subset(len(train_source), fit_scenes),
+                                  progress, 'loading train scenes')
+    if workers:
+        tpack.share_memory()
+    ti, tl = voxelize(tpack, mcfg, tcfg, workers, progress, 'voxelizing train')
+    return ti.numpy(), tl.numpy().astype(np.int64)
 
-        plot_roc(results, d / 'roc.png', f'{dataset} {split}: {n} volumes, {n_unsafe} unsafe')
-        if any(r.reliability is not None for r in results):
-            plot_reliability(results, d / 'reliability.png')
-        if cnn is not None:
-            look_inside(cnn.model, results[0].scores, y, x, pack, d, mcfg.voxel_size,
-                        tcfg.padding, tile_vox)
-    return {**out, 'table': table}
+
+def _write_text(path: str | os.PathLike, text: str) -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(text, encoding='utf-8')
+
+
+def _write_figures(d: Path, table: str, results: list[MethodResult], cnn: CNNMethod | None,
+                   x: np.ndarray, y: np.ndarray, pack: ScenePack, mcfg: MapConfig,
+                   tcfg: TileConfig, title: str) -> None:
+    """table.md, the ROC and reliability plots and, for the first CNN, the look inside."""
+    d.mkdir(parents=True, exist_ok=True)
+    (d / 'table.md').write_text(table, encoding='utf-8')
+    plot_roc(results, d / 'roc.png', title)
+    if any(r.reliability is not None for r in results):
+        plot_reliability(results, d / 'reliability.png')
+    if cnn is not None:
+        tile_vox = int(round(tcfg.tile_size / mcfg.voxel_size))
+        look_inside(cnn.model, results[0].scores, y, x, pack, d, mcfg.voxel_size,
+                    tcfg.padding, tile_vox)
 
 
 def _voxel_key(meta: dict[str, Any]) -> tuple:

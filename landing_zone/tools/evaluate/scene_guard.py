@@ -8,7 +8,7 @@ assessor does (:func:`~landing_zone.judging.patches.patch_ground`), cuts the net
 those counts as :func:`~landing_zone.judging.patches.scene_to_input` cuts it
 (:func:`~landing_zone.judging.patches.cut_patch`) and runs the guard on the centre tile above
 the plane, or above the tiler's ground where there is none, only where the tile is valid: what
-:meth:`landing_zone.assessor.Assessor.finish_assess` does on a map. :func:`voxelize_guarded`
+:func:`landing_zone.judging.judgement.judge_tiles` does on a map. :func:`voxelize_guarded`
 makes both for a whole pack, in loader workers.
 """
 from __future__ import annotations

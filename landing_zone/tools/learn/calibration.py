@@ -5,7 +5,8 @@ match frequencies. Temperature scaling (Guo et al., ICML 2017) divides the logit
 ``T`` fitted on held-out data by maximum likelihood; it changes no ranking (so no AUC), only how
 far from 0.5 the probabilities sit. Platt scaling adds an offset ``b`` (P(safe) =
 sigmoid(logit / T + b)), which also moves where 0.5 falls: fitted on families a net never saw
-(:mod:`landing_zone.tools.learn.recalibrate`), it says how much less safe an unfamiliar tile is than
+(:mod:`landing_zone.tools.learn.recalibrate`), it says how much less safe an unfamiliar tile is
+than
 its logit claims. Everything here treats "safe" (label 1) as the event whose
 probability is predicted.
 """

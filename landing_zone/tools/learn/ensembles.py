@@ -2,15 +2,16 @@
 
 The members are checkpoints of one architecture trained on the same inputs (voxel size, tiles),
 typically the model trained on everything and the fold models of
-:func:`landing_zone.tools.evaluate.lofo.family_folds` (``scripts/lofo.sh``). The file written is a
+:func:`landing_zone.tools.evaluate.lofo.family_folds` (``landing-zone train-fleet --lofo``).
+The file written is a
 :class:`~landing_zone.judging.ensemble.SafetyEnsemble` checkpoint whose metadata records every
 member (file name, weights' SHA-256, what it held out) and, as ``training.hold_out``, the
 families **no** member trained on: so ``evaluate --by-family`` judges a family by an ensemble
 only where none of its members saw it, and ``calibrate`` takes such ensembles as fold models.
 
 The members' own calibrations are not used: the ensemble's mean logit gets its own, fitted by
-``landing-zone calibrate`` on ensembles of members that never saw the families it is fitted on
-(the leave-one-family-out pipeline copies it into those, to judge them as the shipped one judges).
+``landing-zone calibrate`` on ensembles of members that never saw the families it is fitted
+on.
 """
 from __future__ import annotations
 

@@ -1,18 +1,20 @@
 """``landing-zone train-fleet``: many trainings at once, here or on a Ray cluster.
 
 The leave-one-family-out protocol trains one model per held-out family
-(:mod:`landing_zone.tools.evaluate.lofo`), and an ensemble multiplies that by its members. Each of those
-trainings is one task (:mod:`landing_zone.tools.engines`): :func:`landing_zone.tools.learn.train.train`
+(:mod:`landing_zone.tools.evaluate.lofo`), and an ensemble multiplies that by its members. Each of
+those
+trainings is one task (:mod:`landing_zone.tools.engines`):
+:func:`landing_zone.tools.learn.train.train`
 with its own ``--hold-out`` and seed, writing its model, its training state (for resume) and
 its log into ``out_dir``. On a cluster ``out_dir`` is a path every worker mounts (NFS, a
 cluster file system): a task retried after its worker died resumes from the training state
 its first attempt saved (every ``checkpoint_minutes``), and a rerun of the same command skips
-the models already written and resumes the others, as ``scripts/lofo.sh`` does. The summary of
+the models already written and resumes the others. The summary of
 every model goes to ``out_dir/fleet.json``.
 
-Names: ``lofo_AXIS_FAMILY`` for a model that left a family out (``lofo_obstacle_log``, as
-``scripts/lofo.sh`` names them), ``model`` for one trained on everything; with ``members`` > 1
-each gets ``_mK`` (K = 0 ... members - 1) and the seed ``seed + K``.
+Names: ``lofo_AXIS_FAMILY`` for a model that left a family out (``lofo_obstacle_log``),
+``model`` for one trained on everything; with ``members`` > 1 each gets ``_mK``
+(K = 0 ... members - 1) and the seed ``seed + K``.
 
 Every task sets torch's thread count to ``threads`` (default 1: one training per CPU), so
 a model's weights do not depend on the engine or the number of workers (same machine).

@@ -3,10 +3,11 @@
 ``train`` fits the temperature on validation scenes of the families it trained on: P(safe) then
 means what it says on data like the training set, and nothing more. On an obstacle of a shape
 the net never saw it stays as sure as on a familiar one, and that is the failure a planner pays
-for. The leave-groups-out models (``scripts/lofo.sh`` with ``FOLDS=K``) give, for every train
+for. The leave-groups-out models (``landing-zone train-fleet``) give, for every train
 family, the logits of a net that never saw it: pooled, they are this project's best stand-in for
 a site nobody simulated. :func:`calibrate` fits ``P(safe) = sigmoid(logit / T + b)``
-(:func:`~landing_zone.tools.learn.calibration.fit_platt`) on them and writes ``T`` and ``b`` into the
+(:func:`~landing_zone.tools.learn.calibration.fit_platt`) on them and writes ``T`` and ``b`` into
+the
 final model, which trained on every family; its weights stay bit for bit.
 
 The fit is a transfer: the fold models saw fewer families than the final one, so their logits
@@ -103,7 +104,7 @@ def calibrate(model: str | os.PathLike, fold_models: Sequence[str | os.PathLike]
     """
     from landing_zone.judging.checkpoint import load_model
     from landing_zone.tools.learn.calibration import (binary_nll, expected_calibration_error,
-                                                fit_platt, fit_temperature)
+                                                      fit_platt, fit_temperature)
 
     if not fold_models:
         raise ConfigError('give at least one fold model (--fold-model)')

@@ -25,11 +25,11 @@ Files beside ``--out`` (for ``model.safetensors``):
   after every epoch and every ``checkpoint_minutes``; ``--resume`` continues from it.
 - ``model.log.csv``: one row per epoch: train loss, validation loss and AUC, time.
 
-Fine-tuning (``init``, e.g. to a site: docs/SITE_ADAPTATION.md) is conservative by default:
+Fine-tuning (``init``, e.g. to a site) is conservative by default:
 the loss penalises every obstacle sample the net judges safer than the initial net does
 (:mod:`landing_zone.tools.learn.leniency`), and the model keeps the initial model's calibration
 (fitted on families it never saw), its offset lowered where the validation obstacles need it
-(:mod:`landing_zone.tools.learn.guarded_calibration`); a temperature refitted on the validation
+(:mod:`landing_zone.tools.learn.anchored_calibration`); a temperature refitted on the validation
 scenes would hold on the training families only.
 """
 from __future__ import annotations
@@ -44,24 +44,30 @@ from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
-from landing_zone.tools.learn.calibration import binary_nll, expected_calibration_error, fit_temperature
 from landing_zone.config import MapConfig, TileConfig
 from landing_zone.errors import ConfigError, DatasetError, ModelError
 from landing_zone.judging.checkpoint import load_model, read_metadata, save_model
-from landing_zone.judging.inference import bf16_supported, predict
 from landing_zone.judging.ensemble import AnyNet, SafetyEnsemble
+from landing_zone.judging.inference import bf16_supported
 from landing_zone.judging.net import DEFAULT_SPEC, SafetyNet, SafetyNetConfig
 from landing_zone.judging.tiles import tile_voxels
-from landing_zone.tools.learn.guard_sets import check_held_out, guard_offset, load_guard_sets
-from landing_zone.tools.learn.samples import (AugmentedVolumes, EpochSampler, VoxelCache, make_loader,
-                                        voxelize)
-from landing_zone.tools.learn.scenes import (ScenePack, labels_of, open_source, part_names, part_of,
-                                       split_scenes)
-from landing_zone.tools.learn.state import load_state, log_path, save_state, state_path, write_log
+from landing_zone.tools.evaluate.lofo import SceneSubset, dataset_names, hold_out, \
+    parse_hold_out
+from landing_zone.tools.learn.calibration import binary_nll, expected_calibration_error, \
+    fit_temperature
+from landing_zone.tools.learn.fitting import Fit, evaluate_logits, run_epochs
+from landing_zone.tools.learn.anchor_sets import AnchorSets, check_held_out, anchor_offset, \
+    load_anchor_sets
+from landing_zone.tools.learn.leniency import LeniencyPenalty
+from landing_zone.tools.learn.samples import AugmentedVolumes, EpochSampler, VoxelCache, \
+    make_loader, voxelize
+from landing_zone.tools.learn.scenes import ScenePack, labels_of, open_source, part_names, \
+    part_of, split_scenes
+from landing_zone.tools.learn.state import load_state, log_path, save_state, state_path, \
+    write_log
 
-__all__ = ['TrainConfig', 'train', 'roc_auc', 'train_config_from', 'describe']
+__all__ = ['TrainConfig', 'train', 'train_config_from', 'describe']
 
 # -----------------------------------------------------------------------------------------------
 # defaults (the paper's, Sec. IV-C, unless noted)
@@ -106,10 +112,10 @@ class TrainConfig:
                 'terrain:sloped, sensor:rosette; synth3 data); repeat for more.'})
     leniency_penalty: float = field(default=1.0, metadata={  # tools.learn.leniency
         'help': 'With --init: penalty on obstacles judged safer than by --init (0: none).'})
-    calibration: str = field(default='auto', metadata={  # tools.learn.guarded_calibration
-        'choices': ('auto', 'refit', 'guarded'),
-        'help': "refit: T fitted on the validation scenes; guarded: the --init model's T and b, "
-                'b lowered until no more validation obstacles pass; auto: guarded with --init.'})
+    calibration: str = field(default='auto', metadata={  # tools.learn.anchored_calibration
+        'choices': ('auto', 'refit', 'anchored'),
+        'help': "refit: T fitted on the validation scenes; anchored: the --init model's T and b, "
+                'b lowered until no more validation obstacles pass; auto: anchored with --init.'})
 
     def validate(self) -> None:
         SafetyNetConfig(self.arch, dropout=self.dropout).validate()
@@ -136,14 +142,13 @@ class TrainConfig:
         if self.precision not in ('auto', 'fp32', 'bf16'):
             raise ConfigError(f"precision must be 'auto', 'fp32' or 'bf16', got "
                               f'{self.precision!r}')
-        if self.calibration not in ('auto', 'refit', 'guarded'):
-            raise ConfigError(f"calibration must be 'auto', 'refit' or 'guarded', got "
+        if self.calibration not in ('auto', 'refit', 'anchored'):
+            raise ConfigError(f"calibration must be 'auto', 'refit' or 'anchored', got "
                               f'{self.calibration!r}')
         if not (self.device == 'cpu' or self.device.startswith('cuda')):
             raise ConfigError(f"device must be 'cpu' or 'cuda[:N]', got {self.device!r}")
         if self.device.startswith('cuda') and not torch.cuda.is_available():
             raise ConfigError(f'device {self.device!r} asked for, but CUDA is not available')
-        from landing_zone.tools.evaluate.lofo import parse_hold_out
         parse_hold_out(self.hold_out)
 
 
@@ -158,16 +163,6 @@ _RESUME_KEYS = ('arch', 'lr', 'lr_schedule', 'momentum', 'weight_decay', 'batch_
 # the loop
 
 
-def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float:
-    """Area under the ROC curve with "safe" (label 1) as the positive class; NaN for one
-    class."""
-    y = np.asarray(labels).reshape(-1)
-    if y.size == 0 or y.min() == y.max():
-        return float('nan')
-    from sklearn.metrics import roc_auc_score
-    return float(roc_auc_score(y, np.asarray(scores, np.float64).reshape(-1)))
-
-
 @dataclass
 class _Data:
     train: ScenePack
@@ -180,26 +175,10 @@ class _Data:
     val_groups: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
-def _autocast(device: torch.device, use_bf16: bool):
-    if use_bf16:
-        return torch.autocast(device_type=device.type, dtype=torch.bfloat16)
-    return torch.autocast(device_type=device.type, enabled=False)
-
-
-def _evaluate(model: AnyNet, inputs: torch.Tensor, labels: torch.Tensor, precision: str
-              ) -> tuple[np.ndarray, float, float]:
-    if len(inputs) == 0:
-        return np.zeros(0), float('nan'), float('nan')
-    model.eval()
-    logits = predict(model, inputs, batch_size=128, precision=precision, logits=True)
-    y = labels.numpy()
-    return logits, binary_nll(logits, y), roc_auc(y, logits)
-
-
 def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
           resume: bool = False, init: str | os.PathLike | None = None,
           map_cfg: MapConfig | None = None, tile_cfg: TileConfig | None = None,
-          progress: bool = True, guard_data: Any = None) -> dict[str, Any]:
+          progress: bool = True, anchor_data: Any = None) -> dict[str, Any]:
     """Train a net and write it (calibrated) to ``out``.
 
     Args:
@@ -212,14 +191,14 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         init: start from the weights of this model (same spec; an ensemble is fine-tuned as
             one net) instead of random ones; then
             by default the loss penalises obstacle samples judged safer than this model judges
-            them (``config.leniency_penalty``) and the model keeps its calibration, guarded on
+            them (``config.leniency_penalty``) and the model keeps its calibration, anchored on
             the validation obstacles (``config.calibration``).
         map_cfg: voxel size of the inputs (default MapConfig()).
         tile_cfg: tiling of the inputs (default TileConfig()).
         progress: show progress bars on stderr.
-        guard_data: with the guarded calibration: a dataset directory, or a list of datasets
+        anchor_data: with the anchored calibration: a dataset directory, or a list of datasets
             (directories or scene sequences; a directory's train split), never trained on,
-            whose obstacle scenes the guard also holds on, each set a group of its own:
+            whose obstacle scenes the anchor also holds on, each set a group of its own:
             families the fine-tuning must not grow lenient on though it never sees them, e.g.
             thin open structure while adapting to a site's sparse grass.
 
@@ -229,17 +208,10 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     Raises:
         ConfigError, DatasetError, ModelError: bad parameters, data or model files.
     """
+    # the settings: training, calibration, inputs, precision
     cfg = config if config is not None else TrainConfig()
     cfg.validate()
-    calibration = cfg.calibration if cfg.calibration != 'auto' else \
-        ('guarded' if init is not None else 'refit')
-    if calibration == 'guarded' and init is None:
-        raise ConfigError("calibration 'guarded' keeps the initial model's calibration: give "
-                          'an initial model (--init)')
-    if guard_data is not None and calibration != 'guarded':
-        raise ConfigError('guard data serve the guarded calibration only: fine-tune with '
-                          '--init and the guarded calibration')
-    check_held_out(guard_data, data)
+    calibration = _calibration_method(cfg, init, anchor_data, data)
     mcfg = map_cfg if map_cfg is not None else MapConfig()
     mcfg.validate()
     tcfg = tile_cfg if tile_cfg is not None else TileConfig()
@@ -247,23 +219,86 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     out = Path(out)
     spath, lpath = state_path(out), log_path(out)
     device = torch.device(cfg.device)
-    # Measured on an H100 with the paper's net, channels-last, ms per sample for forward +
-    # backward + SGD: batch 20 fp32 0.116, bf16 0.146; batch 128 fp32 0.094, bf16 0.080. On
-    # CPUs bf16 was slower wherever measured (see judging.inference.Predictor).
+    use_bf16, eval_precision = _precision(cfg, device)
+    # the data: validation scenes held out by scene, per class
+    t_load = time.perf_counter()
+    source, source_name, d = _load_data(data, cfg, mcfg, tcfg, progress)
+    anchors = load_anchor_sets(anchor_data, mcfg, tcfg, cfg.workers, progress) \
+        if anchor_data is not None else None
+    load_seconds = time.perf_counter() - t_load
+    # the net and the optimizer, resumed where a run stopped
+    model, src, penalty, opt = _make_model(cfg, side, init, device)
+    run: dict[str, Any] = {'epoch': 0, 'step': 0, 'samples': 0, 'loss_sum': 0.0, 'loss_n': 0,
+                           'seconds': 0.0, 'data_wait': 0.0, 'log': [],
+                           'config': asdict(cfg), 'source': source_name}
+    _resume(run, resume, spath, model, opt, device, cfg, progress)
+    # the samples: on the fly, or from a cache of pre-voxelized augmented copies
+    sampler, cache, loader, cache_seconds = _samples(d, cfg, device, progress)
+    load_seconds += cache_seconds
+
+    def checkpoint() -> None:
+        save_state(spath, model, opt, device, {**run, 'config': asdict(cfg)})
+        write_log(lpath, run['log'])
+
+    # the epochs
+    fit = Fit(model, opt, penalty, device, use_bf16, eval_precision, cfg, run, sampler, cache,
+              loader, checkpoint)
+    run_epochs(fit, d.val_inputs, d.val_labels, progress)
+    # calibration on the held-out scenes, then the final model
+    logits, val_loss, val_auc = evaluate_logits(model, d.val_inputs, d.val_labels,
+                                                eval_precision)
+    temperature, offset, calibration_meta = _calibrate(
+        calibration, model, src, init, logits, d, anchors, part_names(source, source_name),
+        device, eval_precision, progress)
+    model.temperature, model.offset = temperature, offset
+    metrics = _metrics(logits, d.val_labels.numpy(), val_loss, val_auc, temperature, offset,
+                       run, load_seconds)
+    model_cpu = model.to('cpu', memory_format=torch.contiguous_format)
+    model_cpu.temperature, model_cpu.offset = temperature, offset
+    meta_common = {'voxel_size': mcfg.voxel_size, 'tiles': asdict(tcfg), 'training':
+                   asdict(cfg), 'seed': cfg.seed, 'source': source_name,
+                   'datasets': dataset_names(source),
+                   'n_train_scenes': len(d.train), 'n_val_scenes': len(d.val)}
+    save_model(out, model_cpu, {**meta_common, 'metrics': metrics, **calibration_meta})
+    return {'out': str(out), 'state': str(spath), 'log': str(lpath), 'spec': model_cpu.spec,
+            'temperature': temperature, 'offset': offset, 'calibration': calibration, **metrics}
+
+
+def _calibration_method(cfg: TrainConfig, init: Any, anchor_data: Any, data: Any) -> str:
+    """'anchored' or 'refit' (``cfg.calibration``'s 'auto' resolved), checked against the
+    initial model and the anchor data."""
+    calibration = cfg.calibration if cfg.calibration != 'auto' else \
+        ('anchored' if init is not None else 'refit')
+    if calibration == 'anchored' and init is None:
+        raise ConfigError("calibration 'anchored' keeps the initial model's calibration: give "
+                          'an initial model (--init)')
+    if anchor_data is not None and calibration != 'anchored':
+        raise ConfigError('anchor data serve the anchored calibration only: fine-tune with '
+                          '--init and the anchored calibration')
+    check_held_out(anchor_data, data)
+    return calibration
+
+
+def _precision(cfg: TrainConfig, device: torch.device) -> tuple[bool, str]:
+    """Whether to train in bf16 autocast, and the precision of the evaluations."""
+    # bf16 pays on a GPU only for large batches (at the paper's batch of 20 it is slower than
+    # fp32), and on CPUs without native bf16 it falls back to slow kernels
     use_bf16 = cfg.precision == 'bf16' or (cfg.precision == 'auto' and device.type == 'cuda'
                                            and cfg.batch_size >= 64)
-    eval_precision = 'bf16' if use_bf16 else 'fp32'
     if use_bf16 and device.type == 'cpu' and not bf16_supported():
         print('train: this CPU has no native bf16; bf16 will be slow', file=sys.stderr)
+    return use_bf16, 'bf16' if use_bf16 else 'fp32'
 
-    # the data: validation scenes held out by scene, per class
+
+def _load_data(data: Any, cfg: TrainConfig, mcfg: MapConfig, tcfg: TileConfig, progress: bool
+               ) -> tuple[Any, str, _Data]:
+    """The training source (families held out, an even subset), its scenes split into train and
+    validation, and the validation scenes voxelized."""
     source, source_name = open_source(data)
     if cfg.hold_out:
-        from landing_zone.tools.evaluate.lofo import hold_out
         source = hold_out(source, cfg.hold_out)
         source_name += f' without {", ".join(cfg.hold_out)}'
     if cfg.max_scenes and len(source) > cfg.max_scenes:
-        from landing_zone.tools.evaluate.lofo import SceneSubset
         # twins (a safe scene and its unsafe copy) sit side by side: keep whole pairs
         keep = np.unique(np.linspace(0, len(source) // 2 - 1, max(cfg.max_scenes // 2, 1))
                          .round().astype(np.int64))
@@ -276,7 +311,6 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     train_idx, val_idx = split_scenes(labels, cfg.val_fraction, cfg.seed)
     if len(np.unique(labels[train_idx])) < 2:
         raise DatasetError(f'{source_name}: the training scenes must hold both classes')
-    t_load = time.perf_counter()
     d = _Data(ScenePack.from_scenes(source, train_idx, progress, 'loading train scenes'),
               ScenePack.from_scenes(source, val_idx, progress, 'loading val scenes'),
               source_name, mcfg, tcfg, val_groups=part_of(source, val_idx))
@@ -285,11 +319,13 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
         d.val.share_memory()
     d.val_inputs, d.val_labels = voxelize(d.val, mcfg, tcfg, cfg.workers, progress,
                                           'voxelizing val')
-    guard = load_guard_sets(guard_data, mcfg, tcfg, cfg.workers, progress) \
-        if guard_data is not None else None
-    load_seconds = time.perf_counter() - t_load
+    return source, source_name, d
 
-    # the net and the optimizer
+
+def _make_model(cfg: TrainConfig, side: int, init: Any, device: torch.device
+                ) -> tuple[AnyNet, AnyNet | None, Any, torch.optim.Optimizer]:
+    """The net (random, or the initial model's weights), the initial model, the leniency
+    penalty against it (or None) and the optimizer."""
     torch.manual_seed(cfg.seed)
     model: AnyNet = SafetyNet(SafetyNetConfig(cfg.arch, input_size=side, dropout=cfg.dropout))
     src = None
@@ -308,14 +344,16 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     model = model.to(device=device, memory_format=torch.channels_last_3d)
     penalty = None
     if src is not None and cfg.leniency_penalty > 0:
-        from landing_zone.tools.learn.leniency import LeniencyPenalty
         penalty = LeniencyPenalty(src, cfg.leniency_penalty, device)
     opt = torch.optim.SGD(model.parameters(), lr=cfg.lr, momentum=cfg.momentum,
                           weight_decay=cfg.weight_decay)
+    return model, src, penalty, opt
 
-    run: dict[str, Any] = {'epoch': 0, 'step': 0, 'samples': 0, 'loss_sum': 0.0, 'loss_n': 0,
-                           'seconds': 0.0, 'data_wait': 0.0, 'log': [],
-                           'config': asdict(cfg), 'source': source_name}
+
+def _resume(run: dict[str, Any], resume: bool, spath: Path, model: AnyNet,
+            opt: torch.optim.Optimizer, device: torch.device, cfg: TrainConfig,
+            progress: bool) -> None:
+    """With ``resume``, take the run's position and the net's state from ``spath``."""
     if resume and spath.exists():
         state = load_state(spath, model, opt, device)
         old = state.get('config', {})
@@ -332,12 +370,17 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
     elif resume and progress:
         print(f'train: nothing to resume at {spath}; starting afresh', file=sys.stderr)
 
-    # the samples: on the fly, or from a cache of pre-voxelized augmented copies
+
+def _samples(d: _Data, cfg: TrainConfig, device: torch.device, progress: bool
+             ) -> tuple[EpochSampler, VoxelCache | None, Any, float]:
+    """The epochs' sampler and where its samples come from: a cache of pre-voxelized copies
+    (``cache_voxels``) or a loader voxelizing on the fly; and the seconds the cache took."""
+    mcfg, tcfg = d.map_cfg, d.tile_cfg
     vol_ds = AugmentedVolumes(d.train, mcfg, tcfg, cfg.seed, True, cfg.z_shift, cfg.yaw,
                               cfg.edge_drop)
     positions = np.arange(len(d.train))
     sampler = EpochSampler(positions, cfg.augment_copies, cfg.seed, cfg.max_samples)
-    cache = None
+    cache, seconds = None, 0.0
     if cfg.cache_voxels:
         t0 = time.perf_counter()
         ci, cl = voxelize(d.train, mcfg, tcfg, cfg.workers, progress, 'caching voxels',
@@ -345,124 +388,45 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                           dtype=torch.float16, z_shift=cfg.z_shift, yaw=cfg.yaw,
                           edge_drop=cfg.edge_drop)
         cache = VoxelCache(ci, cl, cfg.cache_voxels)
-        load_seconds += time.perf_counter() - t0
+        seconds = time.perf_counter() - t0
     loader = None if cache is not None else make_loader(
         vol_ds, sampler, cfg.batch_size, cfg.workers, pin_memory=device.type == 'cuda')
+    return sampler, cache, loader, seconds
 
-    from landing_zone.tools.evaluate.lofo import dataset_names
-    meta_common = {'voxel_size': mcfg.voxel_size, 'tiles': asdict(tcfg), 'training':
-                   asdict(cfg), 'seed': cfg.seed, 'source': source_name,
-                   'datasets': dataset_names(source),
-                   'n_train_scenes': len(d.train), 'n_val_scenes': len(d.val)}
-    last_ckpt = time.monotonic()
 
-    def checkpoint() -> None:
-        save_state(spath, model, opt, device, {**run, 'config': asdict(cfg)})
-        write_log(lpath, run['log'])
-
-    for epoch in range(run['epoch'], cfg.epochs):
-        start = run['step'] * cfg.batch_size
-        sampler.set_epoch(epoch, start)
-        model.train()
-        n_batches = math.ceil(len(sampler) / cfg.batch_size)
-        # the schedule's clock: batches of whole epochs (a resumed epoch's sampler is shorter)
-        per_epoch = math.ceil((len(sampler) + start) / cfg.batch_size)
-        bar = tqdm(total=n_batches, desc=f'epoch {epoch + 1}/{cfg.epochs}', unit='batch',
-                   file=sys.stderr, disable=not progress)
-        t_epoch = time.perf_counter()
-        seconds0, wait0, samples0 = run['seconds'], run['data_wait'], run['samples']
-        if cache is not None:
-            rows = cache.rows(sampler.keys()[start:])
-            batches = ((cache.inputs[rows[i:i + cfg.batch_size]].float(),
-                        cache.labels[rows[i:i + cfg.batch_size]])
-                       for i in range(0, len(rows), cfg.batch_size))
-        else:
-            batches = iter(loader)
-        t_wait = time.perf_counter()
-        for x, y in batches:
-            run['data_wait'] += time.perf_counter() - t_wait
-            x = x.to(device, non_blocking=True).contiguous(
-                memory_format=torch.channels_last_3d)  # (B, 1, D, H, W)
-            y = y.to(device, non_blocking=True)
-            if cfg.lr_schedule == 'cosine':
-                t = (epoch * per_epoch + run['step']) / (per_epoch * cfg.epochs)
-                for group in opt.param_groups:
-                    group['lr'] = cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(t, 1.0)))
-            with _autocast(device, use_bf16):
-                logits_b, loss = model(x, y)
-                assert loss is not None
-                if penalty is not None:
-                    loss = loss + penalty(x, y, logits_b)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            lv = float(loss.detach())
-            if not math.isfinite(lv):
-                raise ModelError(f'training diverged (loss {lv}) at epoch {epoch + 1}, batch '
-                                 f'{run["step"] + 1}; lower --lr')
-            run['loss_sum'] += lv * len(x)
-            run['loss_n'] += len(x)
-            run['samples'] += len(x)
-            run['step'] += 1
-            now = time.perf_counter()
-            run['seconds'] = seconds0 + (now - t_epoch)
-            bar.update(1)
-            bar.set_postfix(loss=f'{run["loss_sum"] / run["loss_n"]:.4f}', refresh=False)
-            if (cfg.checkpoint_minutes
-                    and time.monotonic() - last_ckpt > 60 * cfg.checkpoint_minutes):
-                checkpoint()
-                last_ckpt = time.monotonic()
-            t_wait = time.perf_counter()
-        bar.close()
-        _, val_loss, val_auc = _evaluate(model, d.val_inputs, d.val_labels, eval_precision)
-        run['seconds'] = seconds0 + (time.perf_counter() - t_epoch)
-        done = run['samples'] - samples0
-        spent = run['seconds'] - seconds0
-        run['log'].append({
-            'epoch': epoch + 1, 'samples': run['samples'],
-            'train_loss': round(run['loss_sum'] / max(run['loss_n'], 1), 6),
-            'val_loss': round(val_loss, 6), 'val_auc': round(val_auc, 6),
-            'seconds': round(run['seconds'], 2),
-            'samples_per_s': round(done / spent, 2) if spent > 0 else '',
-            'data_wait_s': round(run['data_wait'] - wait0, 2)})
-        if progress:
-            r = run['log'][-1]
-            print(f'epoch {epoch + 1}: train loss {r["train_loss"]:.4f}, val loss '
-                  f'{val_loss:.4f}, val AUC {val_auc:.4f}, {r["samples_per_s"]} samples/s',
-                  file=sys.stderr)
-        run.update(epoch=epoch + 1, step=0, loss_sum=0.0, loss_n=0)
-        checkpoint()
-        last_ckpt = time.monotonic()
-
-    # calibration on the held-out scenes, then the final model
-    logits, val_loss, val_auc = _evaluate(model, d.val_inputs, d.val_labels, eval_precision)
+def _calibrate(calibration: str, model: AnyNet, src: AnyNet | None, init: Any,
+               logits: np.ndarray, d: _Data, anchors: AnchorSets | None, names: list[str],
+               device: torch.device, eval_precision: str, progress: bool
+               ) -> tuple[float, float, dict[str, Any]]:
+    """The final model's temperature and offset, and what the model file records of them."""
     y_val = d.val_labels.numpy()
-    calibration_meta: dict[str, Any] = {}
-    if calibration == 'guarded':
-        assert src is not None
-        init_net = src.to(device)
-        init_logits, _, _ = _evaluate(init_net, d.val_inputs, d.val_labels, eval_precision)
-        set_logits = None
-        if guard is not None:  # the same two nets on the guard sets
-            set_logits = (_evaluate(model, guard.inputs, guard.labels, eval_precision)[0],
-                          _evaluate(init_net, guard.inputs, guard.labels, eval_precision)[0])
-        temperature = float(src.temperature)
-        offset, record = guard_offset(logits, init_logits, y_val, d.val_groups,
-                                      part_names(source, source_name), temperature,
-                                      float(src.offset), guard, set_logits)
-        calibration_meta = {'calibration': {'method': 'guarded', 'initial_model': str(init),
-                                            **record}}
-        if progress:
-            lowest = min(record['groups'], key=lambda e: e['offset_limit'], default=None)
-            by = f' (set by {lowest["source"]})' if lowest is not None and offset < src.offset \
-                else ''
-            print(f'train: calibration of {init} kept (T {temperature:.3f}), offset '
-                  f'{src.offset:+.3f} -> {offset:+.3f}{by} so that no more reference obstacles '
-                  'pass at P(safe) >= 0.5 or 0.9 than under it', file=sys.stderr)
-    else:
-        temperature = fit_temperature(logits, y_val) if len(logits) else 1.0
-        offset = 0.0
-    model.temperature, model.offset = temperature, offset
+    if calibration != 'anchored':
+        return (fit_temperature(logits, y_val) if len(logits) else 1.0), 0.0, {}
+    assert src is not None
+    init_net = src.to(device)
+    init_logits, _, _ = evaluate_logits(init_net, d.val_inputs, d.val_labels, eval_precision)
+    set_logits = None
+    if anchors is not None:  # the same two nets on the anchor sets
+        set_logits = (evaluate_logits(model, anchors.inputs, anchors.labels, eval_precision)[0],
+                      evaluate_logits(init_net, anchors.inputs, anchors.labels, eval_precision)[0])
+    temperature = float(src.temperature)
+    offset, record = anchor_offset(logits, init_logits, y_val, d.val_groups, names, temperature,
+                                   float(src.offset), anchors, set_logits)
+    if progress:
+        lowest = min(record['groups'], key=lambda e: e['offset_limit'], default=None)
+        by = f' (set by {lowest["source"]})' if lowest is not None and offset < src.offset \
+            else ''
+        print(f'train: calibration of {init} kept (T {temperature:.3f}), offset '
+              f'{src.offset:+.3f} -> {offset:+.3f}{by} so that no more reference obstacles '
+              'pass at P(safe) >= 0.5 or 0.9 than under it', file=sys.stderr)
+    return temperature, offset, {'calibration': {'method': 'anchored', 'initial_model': str(init),
+                                                 **record}}
+
+
+def _metrics(logits: np.ndarray, y_val: np.ndarray, val_loss: float, val_auc: float,
+             temperature: float, offset: float, run: dict[str, Any], load_seconds: float
+             ) -> dict[str, Any]:
+    """The final validation figures and the run's totals (None for a figure not defined)."""
     p_val = 1.0 / (1.0 + np.exp(-(np.asarray(logits, np.float64) / temperature + offset)))
     metrics = {'val_auc': val_auc, 'val_loss': val_loss,
                'val_nll_calibrated': binary_nll(logits, y_val, temperature, offset)
@@ -473,13 +437,8 @@ def train(data: Any, out: str | os.PathLike, config: TrainConfig | None = None,
                'epochs': run['epoch'], 'samples': run['samples'],
                'train_seconds': round(run['seconds'], 2),
                'load_seconds': round(load_seconds, 2)}
-    metrics = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-               for k, v in metrics.items()}
-    model_cpu = model.to('cpu', memory_format=torch.contiguous_format)
-    model_cpu.temperature, model_cpu.offset = temperature, offset
-    save_model(out, model_cpu, {**meta_common, 'metrics': metrics, **calibration_meta})
-    return {'out': str(out), 'state': str(spath), 'log': str(lpath), 'spec': model_cpu.spec,
-            'temperature': temperature, 'offset': offset, 'calibration': calibration, **metrics}
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in metrics.items()}
 
 
 def train_config_from(**kwargs: Any) -> TrainConfig:

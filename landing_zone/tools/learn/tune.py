@@ -10,7 +10,8 @@ The space: one or two convolution layers, each with a kernel of 3, 5 or 7, 32, 6
 filters and max-pooling of 1, 2 or 4, then one dense layer of 2^7 ... 2^12 units. Draw ``k``
 of the search comes from its own generator (:func:`draw_params`: ``SeedSequence([seed, k])``),
 so the draws do not depend on how many trials run at once or on which worker; each draw is
-one task (:mod:`landing_zone.tools.engines`: processes here, or Ray tasks), which trains its net and
+one task (:mod:`landing_zone.tools.engines`: processes here, or Ray tasks), which trains its net
+and
 records the trial in the study's Optuna storage. A rerun with the same storage continues until
 draws ``0 ... trials - 1`` are recorded; a draw whose model is already written is recorded
 without training it again. A spec whose layers shrink the 32^3 input to nothing, or whose net
@@ -23,7 +24,8 @@ code path for one machine and a cluster. Ray Tune would add its own trainable AP
 directories and restore logic, and the ``ray[tune]`` extra's dependencies, for nothing this
 search uses.
 
-The objective is the validation AUC of :func:`landing_zone.tools.learn.train.train` on the dataset's
+The objective is the validation AUC of :func:`landing_zone.tools.learn.train.train` on the
+dataset's
 training split with a small sample budget by default; each trial also records the net's
 multiply-adds per volume, its parameters and its training time, since a net as accurate for
 fewer operations is what the on-board budget needs.

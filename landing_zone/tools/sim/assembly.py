@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from landing_zone.tools.sim import shapes as sh
+from landing_zone.tools.sim.family_shape import Shape
 
 __all__ = ['build', 'PARTS']
 
@@ -94,9 +95,8 @@ def _part(rng: np.random.Generator) -> tuple[list[sh.Body], str]:
     return out, kind
 
 
-def build(rng: np.random.Generator):  # type: ignore[no-untyped-def]
+def build(rng: np.random.Generator) -> Shape:
     """An assembly (the family's generator: ``rng -> Shape``)."""
-    from landing_zone.tools.sim.families import Shape
     n = int(rng.choice([1, 2, 3, 4, 5], p=[0.3, 0.3, 0.2, 0.12, 0.08]))
     parts, kinds = [], []
     for _ in range(n):

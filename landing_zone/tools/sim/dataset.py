@@ -20,7 +20,9 @@ finish, and a rerun with the same arguments skips the shards already written.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
+import threading
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -29,10 +31,13 @@ import numpy as np
 
 from landing_zone.tools.engines import check_engine, run_tasks
 from landing_zone.errors import SimulationError
+from landing_zone.tools.sim import synth3
+from landing_zone.tools.sim.raycast import embree_started
 from landing_zone.tools.sim.shards import (FORMAT_VERSION, prepare_output, shard_arrays,
-                                     shard_complete, shard_name, write_json, write_npz)
+                                           shard_complete, shard_name, write_json, write_npz)
 from landing_zone.tools.sim.sweeps import (TEST_FRACTION, generate_scene, get_sweep, scene_plan,
-                                     select_scenes)
+                                           select_scenes)
+from landing_zone.tools.sim.vegetation import check_vegetation
 
 __all__ = ['simulate_dataset', 'progress_bar']
 
@@ -58,7 +63,7 @@ def progress_bar(total: int, initial: int, enabled: bool, desc: str) -> Any:
 
 def _plan_meta(dataset: str, seed: int, split: str, scenes: int | None, shard_size: int,
                selected: np.ndarray) -> dict[str, Any]:
-    from landing_zone.tools.sim.obstacles import models
+    from landing_zone.tools.sim.library import models
     from landing_zone.tools.sim.scene import PatchConfig
     sweep = get_sweep(dataset)
     plans = [scene_plan(dataset, int(i)) for i in selected]
@@ -102,6 +107,59 @@ def _plan_key(meta: dict[str, Any]) -> tuple:
             json.dumps(meta.get('edge'), sort_keys=True))  # (its share and ranges)
 
 
+def _check_args(dataset: str, families: Sequence[str] | None, edge: float,
+                vegetation: Sequence[str] | None, engine: str, address: str | None, seed: int,
+                workers: int | None, shard_size: int) -> None:
+    """Refuse what cannot be simulated, before any work."""
+    if dataset != 'synth3':
+        get_sweep(dataset)
+        if families is not None:
+            raise SimulationError(f'--families is a synth3 option; {dataset} draws from its '
+                                  'own obstacle library')
+        if edge:
+            raise SimulationError(f'--edge is a synth3 option; {dataset} places its obstacles '
+                                  'as the paper does')
+        if vegetation is not None:
+            raise SimulationError(f'--vegetation is a synth3 option; {dataset} grows its own '
+                                  'grass')
+    check_engine(engine, address)
+    if not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
+    if workers is not None and (not isinstance(workers, (int, np.integer)) or workers < 1):
+        raise SimulationError(f'workers must be a positive integer, got {workers!r}')
+    if not isinstance(shard_size, (int, np.integer)) or shard_size < 1:
+        raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
+
+
+def _plan(dataset: str, seed: int, split: str, scenes: int | None, shard_size: int,
+          families: Sequence[str] | None, edge: float, vegetation: Sequence[str] | None
+          ) -> tuple[np.ndarray, dict[str, Any], Any, float, Any]:
+    """The scenes to make, the dataset's meta.json, and synth3's families, edge share and
+    vegetation checked (as they are passed to the shards)."""
+    if dataset == 'synth3':
+        families = synth3.check_families(families)
+        edge = synth3.check_edge(edge)
+        vegetation = check_vegetation(vegetation)
+        selected = synth3.select_scenes(scenes, split)
+        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families, edge,
+                                vegetation)
+    else:
+        selected = select_scenes(dataset, scenes, split)
+        meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
+    return selected, meta, families, edge, vegetation
+
+
+def _start_method(engine: str, workers: int) -> str | None:
+    """How local workers start: fork where it is safe: workers start in milliseconds and
+    scripts need no ``if __name__ == '__main__'`` guard. It is safe while this process runs no
+    other thread and has not started Embree (whose worker threads a child would inherit
+    half-alive): true for the command line, whose progress bar starts after the pool."""
+    if engine != 'local' or workers <= 1:
+        return None
+    safe = threading.active_count() == 1 and not embree_started()
+    return 'fork' if safe and 'fork' in multiprocessing.get_all_start_methods() else 'spawn'
+
+
 def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = None,
                      workers: int | None = None, seed: int = 0, split: str = 'both',
                      shard_size: int = 32, progress: bool = True, engine: str = 'local',
@@ -141,36 +199,9 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
         EngineError: an unknown engine, Ray missing, or a worker that died.
         DatasetError: ``out`` holds a different dataset.
     """
-    if dataset != 'synth3':
-        get_sweep(dataset)
-        if families is not None:
-            raise SimulationError(f'--families is a synth3 option; {dataset} draws from its '
-                                  'own obstacle library')
-        if edge:
-            raise SimulationError(f'--edge is a synth3 option; {dataset} places its obstacles '
-                                  'as the paper does')
-        if vegetation is not None:
-            raise SimulationError(f'--vegetation is a synth3 option; {dataset} grows its own '
-                                  'grass')
-    check_engine(engine, address)
-    if not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SimulationError(f'seed must be a non-negative integer, got {seed!r}')
-    if workers is not None and (not isinstance(workers, (int, np.integer)) or workers < 1):
-        raise SimulationError(f'workers must be a positive integer, got {workers!r}')
-    if not isinstance(shard_size, (int, np.integer)) or shard_size < 1:
-        raise SimulationError(f'shard_size must be a positive integer, got {shard_size!r}')
-    if dataset == 'synth3':
-        from landing_zone.tools.sim import synth3
-        from landing_zone.tools.sim.vegetation import check_vegetation
-        families = synth3.check_families(families)
-        edge = synth3.check_edge(edge)
-        vegetation = check_vegetation(vegetation)
-        selected = synth3.select_scenes(scenes, split)
-        meta = synth3.plan_meta(seed, split, scenes, shard_size, selected, families, edge,
-                                vegetation)
-    else:
-        selected = select_scenes(dataset, scenes, split)
-        meta = _plan_meta(dataset, seed, split, scenes, shard_size, selected)
+    _check_args(dataset, families, edge, vegetation, engine, address, seed, workers, shard_size)
+    selected, meta, families, edge, vegetation = _plan(dataset, seed, split, scenes, shard_size,
+                                                       families, edge, vegetation)
     out = Path(out)
     meta_path = out / 'meta.json'
     prepare_output(out, meta, _plan_key)
@@ -184,19 +215,7 @@ def simulate_dataset(dataset: str, out: str | os.PathLike, scenes: int | None = 
             tasks.append((str(out.resolve()), dataset, int(seed), k, indices, families, edge,
                           vegetation))
     workers = min(workers or os.cpu_count() or 1, max(len(tasks), 1))
-    start_method = None
-    if engine == 'local' and workers > 1:
-        import multiprocessing
-        import threading
-
-        from landing_zone.tools.sim.raycast import embree_started
-        # fork where it is safe: workers start in milliseconds and scripts need no
-        # `if __name__ == '__main__'` guard. It is safe while this process runs no other
-        # thread and has not started Embree (whose worker threads a child would inherit
-        # half-alive): true for the command line, whose progress bar starts after the pool.
-        safe = threading.active_count() == 1 and not embree_started()
-        start_method = ('fork' if safe and 'fork' in multiprocessing.get_all_start_methods()
-                        else 'spawn')
+    start_method = _start_method(engine, workers)
     t0 = time.perf_counter()
     rays = 0
     results = run_tasks(_make_shard, tasks, engine=engine, workers=workers, address=address,

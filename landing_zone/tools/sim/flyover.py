@@ -2,7 +2,8 @@
 
 The hover scan of :mod:`landing_zone.tools.sim.sensor` is the paper's nodding line scanner on a
 hovering vehicle. The scanners a user flies are mostly mounted still and swept along by the
-vehicle's motion (what :func:`landing_zone.tools.sim.sensor.path_scan` simulates for whole flights): a
+vehicle's motion (what :func:`landing_zone.tools.sim.sensor.path_scan` simulates for whole
+flights): a
 line scanner at a fixed tilt (pushbroom), a spinning multi-beam, a rosette, an elliptical
 (Palmer) scanner. :func:`flyover_scan` scans one patch that way:
 
@@ -33,9 +34,10 @@ import numpy as np
 
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.raycast import RayCaster
-from landing_zone.tools.sim.sensor import (BrownianWalk, HoverScan, Returns, ScanPattern, SensorConfig,
-                                     direction_angles, mount_frame, ray_box_interval,
-                                     scan_directions)
+from landing_zone.tools.sim.hover import HoverScan
+from landing_zone.tools.sim.sensor import (BrownianWalk, Returns, ScanPattern, SensorConfig,
+                                           direction_angles, mount_frame, ray_box_interval,
+                                           scan_directions)
 
 __all__ = ['Flyover', 'FlyoverPlan', 'FlyoverScan', 'plan_flyover', 'flyover_scan',
            'flyover_window', 'angular_speed']

@@ -23,13 +23,15 @@ context), within ``region`` if one is given; or, for a flight without labels, th
 **A patch** keeps what a synth scene keeps: every ray that passes through the tile's padded
 column (the tile and 0.3 m around it, from 1 m below to 2 m above its ground; see
 :class:`~landing_zone.tools.sim.scene.PatchConfig`), found for all patches at once by a compiled
-ray/box pass over the flight. Its ground is :func:`landing_zone.tools.sim.placement.ground_height` at the
+ray/box pass over the flight. Its ground is :func:`landing_zone.tools.sim.placement.ground_height`
+at the
 tile centre; the patch frame puts the tile centre at (0, 0) and that ground at z = 0. Half the
 patches (a seeded draw) get one obstacle, placed as synth2 places them
 (:func:`~landing_zone.tools.sim.scene.simulate_patch`): half of those wholly inside the tile, half
 straddling its edge; its model drawn as synth2 draws them (rocks, tires, cinder blocks) from
 the split's obstacle group; standing on the ground estimated around it, sunk by
-``landing_zone.tools.sim.insert.SINK`` (and the model's embedding). The altered returns get hit class 2
+``landing_zone.tools.sim.insert.SINK`` (and the model's embedding). The altered returns get hit
+class 2
 (obstacle); the others keep the flight's ``label`` field (0 ground, 1 grass, 2 obstacle), or
 255 (unknown) for flights without one.
 
@@ -55,9 +57,22 @@ from typing import Any
 
 import numba as nb
 import numpy as np
+from scipy.spatial import cKDTree
 
-from landing_zone.errors import ConfigError, DatasetError, SimulationError
-from landing_zone.tools.sim.alteration import segment_meets_box
+from landing_zone.errors import BagError, ConfigError, DatasetError, SimulationError
+from landing_zone.io.labels import labels_path_for, read_labels
+from landing_zone.tools.sim.alteration import RANGE_SIGMA, alter_returns, segment_meets_box
+from landing_zone.tools.sim.dataset import progress_bar
+from landing_zone.tools.sim.hashing import mix
+from landing_zone.tools.sim.library import get_model, models
+from landing_zone.tools.sim.mesh import OBSTACLE
+from landing_zone.tools.sim.obstacles import Obstacle
+from landing_zone.tools.sim.placement import SINK, ground_height, ground_radius
+from landing_zone.tools.sim.recorded import read_flight
+from landing_zone.tools.sim.scene import PatchConfig
+from landing_zone.tools.sim.shards import FORMAT_VERSION, prepare_output, shard_arrays, \
+    shard_complete, shard_name, write_json, write_npz
+from landing_zone.tools.sim.sweeps import SWEEPS, TEST_FRACTION, choose_model
 
 __all__ = ['simulate_hybrid', 'plan_flight', 'column_rays', 'MIN_PATCH_RETURNS']
 
@@ -155,7 +170,6 @@ def column_rays(points: np.ndarray, cloud: np.ndarray, origins: np.ndarray,
 
 def _tile_split(tiles: np.ndarray) -> np.ndarray:
     """A fifth of the tiles (by a hash of their index) are test tiles."""
-    from landing_zone.tools.sim.sweeps import TEST_FRACTION, mix
     keys = (tiles[:, 0].astype(np.int64) & 0xFFFFFFFF) << 32 | (tiles[:, 1] & 0xFFFFFFFF)
     h = mix(keys.astype(np.uint64) + np.uint64(0x4B1D << 32)) % np.uint64(1000)
     return h < np.uint64(int(1000 * TEST_FRACTION))
@@ -213,13 +227,6 @@ def plan_flight(points: np.ndarray, labels: dict[str, Any] | None,
 
 def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dict[str, Any]:
     """Read a flight and decide its patches: tiles, grounds, columns, labels, splits."""
-    from scipy.spatial import cKDTree
-
-    from landing_zone.io.labels import labels_path_for, read_labels
-    from landing_zone.tools.sim.placement import ground_height
-    from landing_zone.tools.sim.recorded import read_flight
-    from landing_zone.tools.sim.scene import PatchConfig
-
     fr = read_flight(bag, args['points_topic'], args['pose_topic'], args['frame_id'])
     lp = labels_path_for(bag)
     labels = read_labels(lp) if lp.exists() else None
@@ -252,12 +259,6 @@ def _flight_plan(index: int, bag: Path, split: str, args: dict[str, Any]) -> dic
 def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.ndarray,
                   scene_index: int, seed: int) -> dict[str, Any]:
     """One scene: the column's rays in the patch frame, with an obstacle if it is unsafe."""
-    from landing_zone.tools.sim.alteration import RANGE_SIGMA, alter_returns
-    from landing_zone.tools.sim.placement import SINK, ground_height, ground_radius
-    from landing_zone.tools.sim.sweeps import SWEEPS, choose_model
-    from landing_zone.tools.sim.mesh import OBSTACLE
-    from landing_zone.tools.sim.obstacles import Obstacle, get_model
-
     split = str(plan['splits'][t])
     rng = np.random.default_rng(np.random.SeedSequence([seed, HYBRID_CODE, plan['index'], t]))
     cx, cy = plan['centres'][t]
@@ -310,10 +311,6 @@ def _patch_record(plan: dict[str, Any], fr: Any, tree: Any, t: int, rays: np.nda
 def _hybrid_meta(flights: list[dict[str, Any]], shards: list[dict[str, Any]],
                  args: dict[str, Any], split_by: str, n_scenes: int,
                  counts: dict[str, dict[str, int]]) -> dict[str, Any]:
-    from landing_zone.tools.sim.shards import FORMAT_VERSION
-    from landing_zone.tools.sim.sweeps import SWEEPS
-    from landing_zone.tools.sim.obstacles import models
-    from landing_zone.tools.sim.scene import PatchConfig
 
     kinds = SWEEPS['synth2'].kinds
     patch = PatchConfig()
@@ -373,13 +370,48 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
         BagError: a bag is unreadable or lacks poses or clouds.
         DatasetError: ``out`` holds another dataset, or no flight gave a patch.
     """
-    from scipy.spatial import cKDTree
+    # the flights and the options, checked
+    train, test, split_by = _flights(flights, test_flights, patches, seed, shard_size)
+    args = {'seed': int(seed), 'patches': int(patches), 'region': region,
+            'points_topic': points_topic, 'pose_topic': pose_topic, 'frame_id': frame_id,
+            'shard_size': int(shard_size)}
+    out = Path(out)
+    t_start = time.perf_counter()
+    # plan every flight (reading it): the plan decides the shards, so a rerun can check it
+    jobs = [(b, 'tile' if split_by == 'tile' else 'train') for b in train] + \
+        [(b, 'test') for b in test]
+    plans, flights_meta, shards, counts, scene = _plan_flights(jobs, args, shard_size)
+    meta = _hybrid_meta(flights_meta, shards, args, split_by, scene, counts)
+    meta_path = out / 'meta.json'
+    prepare_output(out, meta, _plan_key)
+    # the shards not yet written, one flight read at a time
+    done = generated = 0
+    bar = progress_bar(scene, 0, progress, f'hybrid -> {out}')
+    try:
+        for plan in plans:
+            mine = [s for s in shards if s['flight'] == plan['index']]
+            todo = [s for s in mine if not shard_complete(
+                out / s['file'], list(range(s['first_index'], s['first_index'] + s['scenes'])))]
+            done += sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo)
+            bar.update(sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo))
+            if todo:
+                generated += _write_flight_shards(plan, todo, out, args, bar)
+    finally:
+        bar.close()
+    meta['complete'] = True
+    write_json(meta_path, meta)
+    seconds = time.perf_counter() - t_start
+    nbytes = sum(f.stat().st_size for f in (out / 'shards').glob('*.npz'))
+    return {'dataset': 'hybrid', 'out': str(out), 'scenes': scene, 'generated': generated,
+            'skipped': done, 'shards': len(shards), 'seconds': seconds,
+            'scenes_per_s': generated / seconds if seconds > 0 else 0.0, 'bytes': nbytes,
+            'workers': 1, 'counts': counts, 'flights': flights_meta, 'split_by': split_by}
 
-    from landing_zone.tools.sim.recorded import read_flight
-    from landing_zone.tools.sim.dataset import progress_bar
-    from landing_zone.tools.sim.shards import (shard_arrays, shard_complete, shard_name, write_json,
-                                         write_npz, prepare_output)
 
+def _flights(flights: Sequence[str | os.PathLike[str]],
+             test_flights: Sequence[str | os.PathLike[str]], patches: int, seed: int,
+             shard_size: int) -> tuple[list[Path], list[Path], str]:
+    """The train and test flights and how the split is made ('flight' or 'tile'), checked."""
     train = [Path(f) for f in flights]
     test = [Path(f) for f in test_flights]
     if not train and not test:
@@ -399,17 +431,15 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
         split_by = 'tile'
     missing = [str(b) for b in train + test if not b.exists()]
     if missing:
-        from landing_zone.errors import BagError
         raise BagError(f'bag not found: {missing[0]}')
-    args = {'seed': int(seed), 'patches': int(patches), 'region': region,
-            'points_topic': points_topic, 'pose_topic': pose_topic, 'frame_id': frame_id,
-            'shard_size': int(shard_size)}
-    out = Path(out)
-    t_start = time.perf_counter()
+    return train, test, split_by
 
-    # Plan every flight (reading it): the plan decides the shards, so a rerun can check it.
-    jobs = [(b, 'tile' if split_by == 'tile' else 'train') for b in train] + \
-        [(b, 'test') for b in test]
+
+def _plan_flights(jobs: list[tuple[Path, str]], args: dict[str, Any], shard_size: int
+                  ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], list[dict[str, Any]],
+                             dict[str, dict[str, int]], int]:
+    """Every flight's plan, its meta.json entry, the shards, the counts by split and label,
+    and the number of scenes."""
     flights_meta: list[dict[str, Any]] = []
     shards: list[dict[str, Any]] = []
     plans = []
@@ -436,42 +466,23 @@ def simulate_hybrid(flights: Sequence[str | os.PathLike[str]], out: str | os.Pat
     if scene == 0:
         raise DatasetError('no flight gave a patch: no clear, well-covered 1 m tile found '
                            f'(each needs {MIN_PATCH_RETURNS} returns and scanned neighbours)')
-    meta = _hybrid_meta(flights_meta, shards, args, split_by, scene, counts)
-    meta_path = out / 'meta.json'
-    prepare_output(out, meta, _plan_key)
+    return plans, flights_meta, shards, counts, scene
 
-    done = generated = 0
-    bar = progress_bar(scene, 0, progress, f'hybrid -> {out}')
-    try:
-        for plan in plans:
-            mine = [s for s in shards if s['flight'] == plan['index']]
-            todo = [s for s in mine if not shard_complete(
-                out / s['file'], list(range(s['first_index'], s['first_index'] + s['scenes'])))]
-            done += sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo)
-            bar.update(sum(s['scenes'] for s in mine) - sum(s['scenes'] for s in todo))
-            if todo:
-                # read the flight again (plans keep no returns: memory stays one flight's)
-                fr = read_flight(plan['bag'], points_topic, pose_topic, frame_id)
-                tree = cKDTree(fr.points[:, :2])
-                rays = column_rays(fr.points, fr.cloud, fr.origins, plan['tiles'],
-                                   plan['boxes'])
-                for s in todo:
-                    records = []
-                    for idx in range(s['first_index'], s['first_index'] + s['scenes']):
-                        t = idx - plan['first_scene']
-                        records.append(_patch_record(plan, fr, tree, t, rays[t], idx,
-                                                     args['seed']))
-                    write_npz(out / s['file'], shard_arrays(records))
-                    generated += len(records)
-                    bar.update(len(records))
-                del fr, tree, rays
-    finally:
-        bar.close()
-    meta['complete'] = True
-    write_json(meta_path, meta)
-    seconds = time.perf_counter() - t_start
-    nbytes = sum(f.stat().st_size for f in (out / 'shards').glob('*.npz'))
-    return {'dataset': 'hybrid', 'out': str(out), 'scenes': scene, 'generated': generated,
-            'skipped': done, 'shards': len(shards), 'seconds': seconds,
-            'scenes_per_s': generated / seconds if seconds > 0 else 0.0, 'bytes': nbytes,
-            'workers': 1, 'counts': counts, 'flights': flights_meta, 'split_by': split_by}
+
+def _write_flight_shards(plan: dict[str, Any], todo: list[dict[str, Any]], out: Path,
+                         args: dict[str, Any], bar: Any) -> int:
+    """Write the shards ``todo`` of one flight (read again: plans keep no returns, so memory
+    stays one flight's); returns the scenes written."""
+    fr = read_flight(plan['bag'], args['points_topic'], args['pose_topic'], args['frame_id'])
+    tree = cKDTree(fr.points[:, :2])
+    rays = column_rays(fr.points, fr.cloud, fr.origins, plan['tiles'], plan['boxes'])
+    generated = 0
+    for s in todo:
+        records = []
+        for idx in range(s['first_index'], s['first_index'] + s['scenes']):
+            t = idx - plan['first_scene']
+            records.append(_patch_record(plan, fr, tree, t, rays[t], idx, args['seed']))
+        write_npz(out / s['file'], shard_arrays(records))
+        generated += len(records)
+        bar.update(len(records))
+    return generated

@@ -51,12 +51,18 @@ from typing import Any
 
 import numpy as np
 
-from landing_zone.errors import BagError, ConfigError, SimulationError
+from landing_zone.errors import BagError, ConfigError, InvalidCloudError, InvalidPoseError, \
+    SimulationError
+from landing_zone.io.bags import BagWriter, RawBag
 from landing_zone.io.labels import labels_path_for, read_labels, write_labels
 from landing_zone.tools.sim.alteration import RANGE_SIGMA, ObstacleScene
-from landing_zone.tools.sim.obstacles import Obstacle, models
+from landing_zone.tools.sim.families import parse_families
+from landing_zone.tools.sim.flight_site import tile_labels
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.obstacles import Obstacle
 from landing_zone.tools.sim.placement import DEFAULT_KINDS, SINK, place_obstacles
 from landing_zone.tools.sim.recorded import alter_cloud, read_flight
+from msg_adapters.pointcloud import read_cloud_header
 
 __all__ = ['insert_obstacles', 'InsertResult', 'update_labels', 'MIN_TILE_RETURNS']
 
@@ -108,7 +114,6 @@ def update_labels(labels: dict[str, Any] | None, obstacles: Sequence[Obstacle],
     Returns:
         A new document; ``labels`` is not changed.
     """
-    from landing_zone.tools.sim.flight import tile_labels
 
     if labels is not None:
         doc = copy.deepcopy(labels)
@@ -182,42 +187,30 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
         ConfigError: bad region, labels or noise.
         SimulationError: unknown kinds or group, a count that does not fit.
     """
-    from landing_zone.io.bags import BagWriter, RawBag
-    from landing_zone.errors import InvalidCloudError, InvalidPoseError
-    from msg_adapters.pointcloud import read_cloud_header
-
+    # the outputs and options, checked before any reading
     t_start = time.perf_counter()
     bag, out = Path(bag), Path(out)
-    if out.suffix != '.mcap':
-        raise BagError(f'the output must be a .mcap file, got {out}')
-    labels_out = labels_path_for(out)
-    if out.resolve() == bag.resolve():
-        raise BagError(f'the output {out} would overwrite the input bag')
-    if not overwrite:
-        for path in (out, labels_out):
-            if path.exists():
-                raise BagError(f'{path} exists already (use --overwrite)')
-    if not out.parent.is_dir():
-        raise BagError(f'cannot write {out}: {out.parent} is not a directory')
+    labels_out = _check_outputs(bag, out, overwrite)
     if not (isinstance(range_sigma, (int, float)) and math.isfinite(range_sigma)
             and range_sigma >= 0):
         raise ConfigError(f'range noise must be a non-negative number, got {range_sigma!r}')
     if group not in ('train', 'test'):
         raise SimulationError(f"obstacle group must be 'train' or 'test', got {group!r}")
     models(tuple(kinds), group)  # unknown kinds fail here, before any reading
-    from landing_zone.tools.sim.families import parse_families
     families = parse_families(tuple(families))
     labels_in = Path(labels) if labels is not None else labels_path_for(bag)
     if labels is not None and not labels_in.exists():
         raise ConfigError(f'labels file not found: {labels_in}')
     doc = read_labels(labels_in) if labels_in.exists() else None
 
+    # the flight
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     flight = read_flight(bag, points_topic, pose_topic, frame_id)
     poses, points = flight.poses, flight.points
     timings['read'] = time.perf_counter() - t0
 
+    # the obstacles and the labels with them
     t0 = time.perf_counter()
     seeds = np.random.SeedSequence([int(seed), 0x1E5E47]).spawn(2)
     if obstacles is None:
@@ -234,10 +227,47 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     new_labels = update_labels(doc, placed, points, frame_id, extra)
     timings['place'] = time.perf_counter() - t0
 
-    noise = np.random.default_rng(seeds[1])
+    # every message copied, the clouds with the obstacles in them
+    t0 = time.perf_counter()
+    counts = _copy_altered(bag, out, overwrite, scene, poses, np.random.default_rng(seeds[1]),
+                           points_topic, frame_id, range_sigma)
+    try:
+        write_labels(labels_out, new_labels)
+    except OSError as err:
+        out.unlink(missing_ok=True)  # a bag without its labels is no result
+        raise BagError(f'cannot write {labels_out}: {err.strerror}') from err
+    timings['write'] = time.perf_counter() - t0
+    timings['alter'] = counts.pop('cast_s')
+    return InsertResult(out, labels_out, placed, counts['clouds'], counts['altered_clouds'],
+                        counts['skipped'], counts['returns'], counts['altered'],
+                        counts['messages'], time.perf_counter() - t_start, timings)
+
+
+def _check_outputs(bag: Path, out: Path, overwrite: bool) -> Path:
+    """The output's labels path, the output checked: a .mcap that is not the input, written
+    only where it may be."""
+    if out.suffix != '.mcap':
+        raise BagError(f'the output must be a .mcap file, got {out}')
+    labels_out = labels_path_for(out)
+    if out.resolve() == bag.resolve():
+        raise BagError(f'the output {out} would overwrite the input bag')
+    if not overwrite:
+        for path in (out, labels_out):
+            if path.exists():
+                raise BagError(f'{path} exists already (use --overwrite)')
+    if not out.parent.is_dir():
+        raise BagError(f'cannot write {out}: {out.parent} is not a directory')
+    return labels_out
+
+
+def _copy_altered(bag: Path, out: Path, overwrite: bool, scene: ObstacleScene, poses: Any,
+                  noise: np.random.Generator, points_topic: str, frame_id: str,
+                  range_sigma: float) -> dict[str, Any]:
+    """Copy every message of ``bag`` to ``out``, the clouds of ``points_topic`` in
+    ``frame_id`` with the obstacles of ``scene`` in them; returns the counts (and the seconds
+    of casting, ``cast_s``)."""
     clouds = altered_clouds = skipped = returns = altered = messages = 0
     cast_s = 0.0
-    t0 = time.perf_counter()
     writer = BagWriter(out, overwrite=overwrite)
     writer.open()
     try:
@@ -276,12 +306,5 @@ def insert_obstacles(bag: str | os.PathLike[str], out: str | os.PathLike[str], *
     except BaseException:
         writer.abort()
         raise
-    try:
-        write_labels(labels_out, new_labels)
-    except OSError as err:
-        out.unlink(missing_ok=True)  # a bag without its labels is no result
-        raise BagError(f'cannot write {labels_out}: {err.strerror}') from err
-    timings['write'] = time.perf_counter() - t0
-    timings['alter'] = cast_s
-    return InsertResult(out, labels_out, placed, clouds, altered_clouds, skipped, returns,
-                        altered, messages, time.perf_counter() - t_start, timings)
+    return {'clouds': clouds, 'altered_clouds': altered_clouds, 'skipped': skipped,
+            'returns': returns, 'altered': altered, 'messages': messages, 'cast_s': cast_s}

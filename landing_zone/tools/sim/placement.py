@@ -13,9 +13,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from landing_zone.errors import ConfigError, SimulationError
-from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel, models
+from landing_zone.tools.sim.families import draw_instance, parse_families
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.obstacles import Obstacle, ObstacleModel
 
 __all__ = ['ground_height', 'ground_radius', 'place_obstacles', 'DEFAULT_KINDS', 'SINK',
            'MIN_SEPARATION']
@@ -108,7 +111,7 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
         points: (N, 3) returns of the flight [m].
         count: obstacles to place.
         rng: all randomness of the placement.
-        kinds: obstacle kinds (see :data:`~landing_zone.tools.sim.obstacles.KINDS`).
+        kinds: obstacle kinds (see :data:`~landing_zone.tools.sim.library.KINDS`).
         group: ``train`` or ``test`` models (as the datasets split them), None for any.
         region: ``(x0, y0, x1, y1)``.
         families: obstacle families (:data:`~landing_zone.tools.sim.families.FAMILIES`).
@@ -123,11 +126,9 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
         SimulationError: unknown kinds, a count that does not fit, or no ground to stand on.
         ConfigError: neither region nor labels, or a bad region.
     """
-    from scipy.spatial import cKDTree
-
+    # the models to cycle through
     if not isinstance(count, (int, np.integer)) or count < 1:
         raise SimulationError(f'count must be a positive integer, got {count!r}')
-    from landing_zone.tools.sim.families import draw_instance, parse_families
     kinds = tuple(kinds)
     families = parse_families(tuple(families))
     if not kinds and not families:
@@ -136,38 +137,18 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
     empty = [k for k, v in by_kind.items() if not v]
     if empty:
         raise SimulationError(f'obstacle kind {empty[0]!r} has no model in group {group!r}')
+    # where they may stand: the region, the safe tiles of the labels, or both
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if region is None and labels is None:
         raise ConfigError('give a region (--region X0 Y0 X1 Y1) or a labels file (--labels)')
-    if region is not None:
-        r = np.asarray(region, np.float64)
-        if r.shape != (4,) or not np.isfinite(r).all() or r[2] <= r[0] or r[3] <= r[1]:
-            raise ConfigError(f'region must be X0 Y0 X1 Y1 with X0 < X1 and Y0 < Y1, got '
-                              f'{list(region)}')
-        lo, hi = r[:2], r[2:]
-        inside = np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1)
-        if not inside.any():
-            span = (f'{p[:, 0].min():.1f} .. {p[:, 0].max():.1f} x {p[:, 1].min():.1f} .. '
-                    f'{p[:, 1].max():.1f}') if len(p) else 'nothing'
-            raise ConfigError(f'region {r[0]:g} {r[1]:g} {r[2]:g} {r[3]:g} holds no returns '
-                              f'(the flight covers {span})')
-    ts = 1.0
-    safe = np.zeros((0, 2))
-    if labels is not None:
-        safe, ts = _safe_tiles(labels)
-        if region is not None and len(safe):
-            h = ts / 2
-            keep = np.all((safe + h > lo) & (safe - h < hi), axis=1)
-            safe = safe[keep]
-        if not len(safe):
-            raise SimulationError('the labels file has no safe tile' +
-                                  (' in the region' if region is not None else ''))
-    area = len(safe) * ts * ts if labels is not None else float(np.prod(hi - lo))
+    box = _region_box(p, region) if region is not None else None
+    safe, ts = _safe_spots(labels, box)
+    area = len(safe) * ts * ts if labels is not None else float(np.prod(box[1] - box[0]))
     capacity = int(area / (separation * separation) * 0.5) + 1
     if count > capacity:
         raise SimulationError(f'{count} obstacles do not fit {separation:g} m apart in '
                               f'{area:g} m^2 (at most about {capacity})')
-
+    # one at a time, each kept apart from those placed and labelled
     taken = [np.array([o['x'], o['y']], np.float64)
              for o in (labels or {}).get('obstacles', []) if 'x' in o and 'y' in o]
     tree = cKDTree(p[:, :2]) if len(p) else None
@@ -180,30 +161,76 @@ def place_obstacles(points: np.ndarray, count: int, rng: np.random.Generator, *,
             model = choices[int(rng.integers(len(choices)))]
         else:
             model = draw_instance(entry, group, rng).model
-        radius = ground_radius(model)
-        for _ in range(_PLACE_TRIES):
-            if labels is not None:
-                c = safe[int(rng.integers(len(safe)))] + rng.uniform(-ts / 2, ts / 2, 2)
-                if region is not None and not np.all((c >= lo) & (c <= hi)):
-                    continue
-            else:
-                c = rng.uniform(lo, hi)
-            yaw = float(rng.uniform(0.0, 2.0 * np.pi))
-            if any(np.hypot(*(c - t)) < separation for t in taken):
-                continue
-            if tree is None:
-                break
-            near = tree.query_ball_point(c, radius)
-            g = ground_height(p[near], float(c[0]), float(c[1]), radius) if near else None
-            if g is None:
-                continue
-            ob = Obstacle(model, float(c[0]), float(c[1]), g - model.embed - sink, yaw)
-            out.append(ob)
-            taken.append(c)
-            break
-        else:
+        ob = _place_one(model, p, tree, rng, labels is not None, safe, ts, box, taken,
+                        separation, sink)
+        if ob is None:
             raise SimulationError(
                 f'could not place obstacle {i + 1} of {count} ({model.name}): no spot '
                 f'{separation:g} m from the others with returns to stand on '
                 f'({_PLACE_TRIES} tries); use a larger region or fewer obstacles')
+        if tree is not None:
+            out.append(ob)
     return out
+
+
+def _region_box(p: np.ndarray, region: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """The region's corners, checked to hold returns."""
+    r = np.asarray(region, np.float64)
+    if r.shape != (4,) or not np.isfinite(r).all() or r[2] <= r[0] or r[3] <= r[1]:
+        raise ConfigError(f'region must be X0 Y0 X1 Y1 with X0 < X1 and Y0 < Y1, got '
+                          f'{list(region)}')
+    lo, hi = r[:2], r[2:]
+    inside = np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1)
+    if not inside.any():
+        span = (f'{p[:, 0].min():.1f} .. {p[:, 0].max():.1f} x {p[:, 1].min():.1f} .. '
+                f'{p[:, 1].max():.1f}') if len(p) else 'nothing'
+        raise ConfigError(f'region {r[0]:g} {r[1]:g} {r[2]:g} {r[3]:g} holds no returns '
+                          f'(the flight covers {span})')
+    return lo, hi
+
+
+def _safe_spots(labels: dict[str, Any] | None,
+                box: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, float]:
+    """Centres of the labels' safe tiles (those reaching into ``box``, if given) and the tile
+    size; none without labels."""
+    if labels is None:
+        return np.zeros((0, 2)), 1.0
+    safe, ts = _safe_tiles(labels)
+    if box is not None and len(safe):
+        h = ts / 2
+        keep = np.all((safe + h > box[0]) & (safe - h < box[1]), axis=1)
+        safe = safe[keep]
+    if not len(safe):
+        raise SimulationError('the labels file has no safe tile' +
+                              (' in the region' if box is not None else ''))
+    return safe, ts
+
+
+def _place_one(model: ObstacleModel, p: np.ndarray, tree: Any, rng: np.random.Generator,
+               on_tiles: bool, safe: np.ndarray, ts: float,
+               box: tuple[np.ndarray, np.ndarray] | None, taken: list[np.ndarray],
+               separation: float, sink: float) -> Obstacle | None:
+    """One obstacle of ``model`` at a spot apart from ``taken`` (which gains it) with returns
+    to stand on; None when no try found one. Without returns (``tree`` None) the first spot
+    apart from the others ends the tries and nothing is placed."""
+    radius = ground_radius(model)
+    for _ in range(_PLACE_TRIES):
+        if on_tiles:
+            c = safe[int(rng.integers(len(safe)))] + rng.uniform(-ts / 2, ts / 2, 2)
+            if box is not None and not np.all((c >= box[0]) & (c <= box[1])):
+                continue
+        else:
+            assert box is not None
+            c = rng.uniform(box[0], box[1])
+        yaw = float(rng.uniform(0.0, 2.0 * np.pi))
+        if any(np.hypot(*(c - t)) < separation for t in taken):
+            continue
+        if tree is None:
+            return Obstacle(model, float(c[0]), float(c[1]), 0.0, yaw)
+        near = tree.query_ball_point(c, radius)
+        g = ground_height(p[near], float(c[0]), float(c[1]), radius) if near else None
+        if g is None:
+            continue
+        taken.append(c)
+        return Obstacle(model, float(c[0]), float(c[1]), g - model.embed - sink, yaw)
+    return None

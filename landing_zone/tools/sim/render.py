@@ -114,7 +114,7 @@ def render_points(points: np.ndarray, labels: np.ndarray | None, out: str | os.P
 
 def render_library(out: str | os.PathLike) -> Path:
     """Every obstacle model of the library, shaded, with its name, group and size."""
-    from landing_zone.tools.sim.obstacles import library
+    from landing_zone.tools.sim.library import library
     lib = list(library().values())
     return _render_models(lib, [f'{m.name} ({m.group})' for m in lib], out, 6, 0.26)
 
@@ -186,7 +186,8 @@ def _render_scene(root: Path, out: Path, index: int, split: str) -> Path:
              (np.array([-0.8, -0.8]), np.array([0.8, 0.8]), '0.6')]
     polygons = []
     if p.get('obstacle'):
-        from landing_zone.tools.sim.obstacles import Obstacle, get_model
+        from landing_zone.tools.sim.library import get_model
+        from landing_zone.tools.sim.obstacles import Obstacle
         ob = p['obstacle']
         placed = Obstacle(get_model(ob['model']), ob['x'], ob['y'], ob['z'], ob['yaw'])
         polygons.append((placed.footprint(), CLASS_COLOURS[OBSTACLE]))
@@ -239,7 +240,8 @@ def _render_flight(bag: Path, out: Path) -> Path:
             if not t['safe']:
                 c = np.array([t['x'], t['y']])
                 boxes.append((c - ts / 2, c + ts / 2, '#ff7f0e'))
-        from landing_zone.tools.sim.obstacles import Obstacle, get_model
+        from landing_zone.tools.sim.library import get_model
+        from landing_zone.tools.sim.obstacles import Obstacle
         for ob in info['obstacles']:
             placed = Obstacle(get_model(ob['model']), ob['x'], ob['y'], ob['z'], ob['yaw'])
             polygons.append((placed.footprint(), 'k'))

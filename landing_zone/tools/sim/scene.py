@@ -25,10 +25,11 @@ import numpy as np
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.grass import GrassConfig, grass_mesh
 from landing_zone.tools.sim.mesh import Mesh
-from landing_zone.tools.sim.obstacles import Obstacle, get_model, place
+from landing_zone.tools.sim.library import get_model
+from landing_zone.tools.sim.obstacles import Obstacle, place
 from landing_zone.tools.sim.raycast import RayCaster
-from landing_zone.tools.sim.sensor import (HoverScan, SensorConfig, _HoverGeometry,
-                                     estimate_nod_rate, hover_scan)
+from landing_zone.tools.sim.hover import HoverGeometry, HoverScan, estimate_nod_rate, hover_scan
+from landing_zone.tools.sim.sensor import SensorConfig
 from landing_zone.tools.sim.terrain import Terrain, TerrainConfig
 
 __all__ = ['World', 'PatchConfig', 'Patch', 'simulate_patch', 'view_region', 'hover_plan']
@@ -74,7 +75,7 @@ class PatchConfig:
     sensor: SensorConfig = field(default_factory=SensorConfig)
     sensor_offset: float = -5.0  # x of the hovering sensor, relative to the tile centre [m]
     sensor_height: float = 4.0  # height of the sensor above the nominal ground [m]
-    obstacle: str | None = None  # obstacle model name (see obstacles.library()); None: safe
+    obstacle: str | None = None  # obstacle model name (see library.library()); None: safe
     tile_size: float = 1.0  # edge of the tile (the area of interest) [m]
     padding: float = 0.3  # the column reaches this far beyond the tile on every side [m]
     column_below: float = 1.0  # the column reaches this far below the nominal ground [m]
@@ -222,7 +223,7 @@ def hover_plan(sensor: SensorConfig, position: np.ndarray, aoi_lo: np.ndarray,
     the sensor's wander [m] (how long the scan takes decides how far it may wander) and the
     (8, 3) corners of the box the sensor stays in."""
     omega = estimate_nod_rate(sensor, position, aoi_lo, aoi_hi, 0.0)
-    geom = _HoverGeometry.make(sensor, position, np.zeros(3), 0.0)
+    geom = HoverGeometry.make(sensor, position, np.zeros(3), 0.0)
     t_scan = (sensor.sweeps_per_target + 1.5) * geom.span / math.radians(omega)
     wander = 5.0 * sensor.wander_sigma * math.sqrt(t_scan) + 0.01
     sources = position + wander * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1)

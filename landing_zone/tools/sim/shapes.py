@@ -17,7 +17,7 @@ import numpy as np
 
 __all__ = ['Body', 'join', 'rotation', 'box', 'rod', 'polyline_rods', 'tube', 'noisy_hull',
            'flatten_bed', 'revolved', 'settle', 'fit', 'tilt', 'stack_height', 'heap', 'pick',
-           'random_rotation', 'lying', 'Z_UP']
+           'random_rotation', 'lying', 'Z_UP', 'normalise', 'box_parts', 'cinder_block']
 
 Body = tuple[np.ndarray, np.ndarray]  # (V, 3) float64 vertices, (F, 3) int64 faces
 Z_UP = np.array([0.0, 0.0, 1.0])
@@ -248,3 +248,43 @@ def random_rotation(rng: np.random.Generator) -> np.ndarray:
 def lying(v: np.ndarray) -> np.ndarray:
     """Turn a z-axis shape onto its side (axis along y), settled."""
     return settle(v @ rotation((1.0, 0.0, 0.0), math.pi / 2).T)
+
+
+def normalise(vertices: np.ndarray) -> np.ndarray:
+    """Centre the footprint's bounding box on the origin and put the lowest point at z = 0."""
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    return vertices - np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+
+
+def box_parts(parts: list[tuple[tuple[float, float, float], tuple[float, float, float]]]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes given as (centre, extents) joined into one vertex/face list."""
+    import trimesh
+    verts, faces, offset = [], [], 0
+    for centre, extents in parts:
+        box = trimesh.creation.box(extents=extents)
+        verts.append(np.asarray(box.vertices) + np.asarray(centre))
+        faces.append(np.asarray(box.faces) + offset)
+        offset += len(box.vertices)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def cinder_block(length: float, width: float, height: float, cores: int, wall: float,
+                 web: float, on_side: bool) -> tuple[np.ndarray, np.ndarray]:
+    """A cinder block of ``cores`` cores as boxes (outer walls and webs), so the cores are real
+    holes a ray can pass into; ``on_side`` lays it down with the cores horizontal."""
+    # Along x: end wall, (core, web) * (cores - 1), core, end wall; along y: two side walls.
+    core = (length - 2 * wall - (cores - 1) * web) / cores
+    parts = [((0.0, (width - wall) / 2, 0.0), (length, wall, height)),
+             ((0.0, -(width - wall) / 2, 0.0), (length, wall, height))]
+    inner = width - 2 * wall
+    x = -length / 2
+    for k in range(cores + 1):
+        thick = wall if k in (0, cores) else web
+        parts.append(((x + thick / 2, 0.0, 0.0), (thick, inner, height)))
+        x += thick + core
+    v, f = box_parts(parts)
+    if on_side:
+        v = v[:, [0, 2, 1]]
+        f = f[:, ::-1]
+    return normalise(v), f

@@ -23,9 +23,12 @@ from typing import Any, Sequence
 import numpy as np
 
 from landing_zone.errors import SimulationError
+from landing_zone.tools.sim.hashing import mix
+from landing_zone.tools.sim.library import models
+from landing_zone.tools.sim.synth3_scene import generate_scene as generate_synth3
 
 __all__ = ['SWEEPS', 'Sweep', 'TEST_FRACTION', 'scene_plan', 'select_scenes', 'scene_rng',
-           'generate_scene', 'choose_model', 'mix', 'get_sweep']
+           'generate_scene', 'choose_model', 'get_sweep']
 
 TEST_FRACTION = 0.2
 _DATASET_CODES = {'synth1': 1, 'synth2': 2, 'synth3': 3}  # synth3: landing_zone.tools.sim.synth3
@@ -92,15 +95,6 @@ SWEEPS = {
 }
 
 
-def mix(x: np.ndarray | int) -> np.ndarray:
-    """splitmix64 finaliser: a well-spread 64-bit hash of integers."""
-    z = (np.asarray(x, dtype=np.uint64) + np.uint64(0x9E3779B97F4A7C15))
-    with np.errstate(over='ignore'):
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
 def get_sweep(dataset: str) -> Sweep:
     if dataset not in SWEEPS:
         raise SimulationError(f'unknown dataset {dataset!r}; choose from {", ".join(SWEEPS)}')
@@ -142,7 +136,6 @@ def select_scenes(dataset: str, scenes: int | None = None, split: str = 'both') 
 
 
 def choose_model(sweep: Sweep, split: str, rng: np.random.Generator) -> str:
-    from landing_zone.tools.sim.obstacles import models
     if sweep.kinds == ('box',):
         return 'box'
     kinds = list(sweep.kinds)
@@ -171,7 +164,6 @@ def generate_scene(dataset: str, index: int, seed: int = 0, threads: int = 1,
         ``params`` (JSON-ready), ``rays`` (cast) and ``timings`` (seconds per stage).
     """
     if dataset == 'synth3':
-        from landing_zone.tools.sim.synth3 import generate_scene as generate_synth3
         return generate_synth3(index, seed, threads, families, edge, vegetation)
     from landing_zone.tools.sim.grass import GrassConfig
     from landing_zone.tools.sim.scene import PatchConfig, simulate_patch

@@ -2,7 +2,8 @@
 
 synth1 and synth2 are the paper's Cartesian sweeps over one obstacle library, one kind of grass,
 near-flat ground and one scanner; synth3 draws every patch from the families of
-:mod:`landing_zone.tools.sim.families` (obstacles), :mod:`landing_zone.tools.sim.vegetation` (ground cover),
+:mod:`landing_zone.tools.sim.families` (obstacles), :mod:`landing_zone.tools.sim.vegetation`
+(ground cover),
 :data:`TERRAIN_FAMILIES` and :data:`SENSOR_FAMILIES` (the nodding line scanner hovering as in
 synth2, or a pass of a pushbroom line, spinning multi-beam, rosette or elliptical scanner,
 :mod:`landing_zone.tools.sim.flyover`), at 1000-5000 returns/m^2 from 4-20 m up (spinning scanners
@@ -17,7 +18,8 @@ obstacle tells them apart), and dropping a family drops whole pairs. In three of
 blades grow to 60-110 % of the obstacle's visible height (``hide``), in both scenes of the pair.
 
 **The split.** A hash of the pair puts a quarter of the pairs into the test split. Train pairs
-draw their obstacle from the train families (:data:`~landing_zone.tools.sim.families.TRAIN_FAMILIES`
+draw their obstacle from the train families
+(:data:`~landing_zone.tools.sim.families.TRAIN_FAMILIES`
 among the dataset's) and from the train instances (index = pair number); test pairs from every
 family and from its test instances (index = ``TEST_BASE`` + pair number). So the test split
 holds families never trained on and, for the others, instances whose seed streams training never
@@ -37,15 +39,15 @@ ground (its upper half, if lower) reaches 5-30 cm into the tile (:data:`EDGE_REA
 safe one the whole of it stands 15-30 cm beyond the edge (:data:`EDGE_GAP`), where the
 network's 30 cm of context still sees it (an obstacle in the next tile, as on every site).
 Closer than 15 cm the 10 cm pooled input barely tells beyond from in, and safe scenes there
-taught the net to hedge on every tile (``experiments/2026-12-03_obstacles_at_the_edge``).
-Elsewhere a safe scene holds no obstacle and an unsafe one's
+teach the net to hedge on every tile. Elsewhere a safe scene holds no obstacle and an unsafe one's
 obstacle reaches at least half its radius in, so without these pairs the net never learns where
 a neighbour's obstacle ends. Such a dataset records the share in ``meta.json`` and mixes it into
 every seed, as other ``families`` are.
 
 **Leave one family out.** Every scene's ``params`` name its ``family`` (obstacle; the safe twin
 names its pair's), ``vegetation``, ``terrain`` and ``sensor``, and ``meta.json`` lists them per
-shard, so a trainer can drop a family without reading a shard (:mod:`landing_zone.tools.evaluate.lofo`,
+shard, so a trainer can drop a family without reading a shard
+(:mod:`landing_zone.tools.evaluate.lofo`,
 ``landing-zone train --hold-out obstacle:FAMILY``) and ``landing-zone evaluate --by-family``
 reports each family of the test split.
 
@@ -58,18 +60,22 @@ families, e.g. the meadow prior, its word and their indices last).
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import replace
 from typing import Any, Sequence
 
 import numpy as np
 
 from landing_zone.errors import SimulationError
+from landing_zone.tools.sim.families import TEST_BASE, get_family
+from landing_zone.tools.sim.hashing import mix
+from landing_zone.tools.sim.scene import PatchConfig
+from landing_zone.tools.sim.shards import FORMAT_VERSION, shard_name
+from landing_zone.tools.sim.vegetation import SAFE_SHRUB_HEIGHT, SYNTH3_VEGETATION, \
+    VEGETATION_FAMILIES, check_vegetation, draw_vegetation
 
 __all__ = ['SYNTH3_CODE', 'SYNTH3_FAMILIES', 'synth3_train_families', 'check_families',
            'TERRAIN_FAMILIES', 'SENSOR_FAMILIES', 'DEFAULT_SCENES', 'MAX_SCENES',
-           'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta', 'generate_scene',
-           'FAMILY_AXES', 'check_edge', 'EDGE_GAP', 'EDGE_REACH']
+           'TEST_FRACTION', 'scene_plan', 'select_scenes', 'plan_meta',
+           'FAMILY_AXES', 'check_edge', 'EDGE_GAP', 'EDGE_REACH', 'EDGE_TALL', 'variant_key']
 
 SYNTH3_CODE = 3  # the dataset's word in every seed
 _PLAN = 0x91A4  # the plan's word
@@ -77,7 +83,7 @@ _EDGE = 0xED6E  # the word of a dataset with obstacles at the tile's edge
 _VEGETATION = 0x7E6E  # the word of a dataset of other vegetation families
 EDGE_GAP = (0.15, 0.3)  # [m] a safe scene's obstacle stands this far beyond the tile's edge
 EDGE_REACH = (0.05, 0.3)  # [m] an unsafe one's reaches this far in
-_EDGE_TALL = 0.10  # [m] what reaches in: the part this high above ground (or its top half)
+EDGE_TALL = 0.10  # [m] what reaches in: the part this high above ground (or its top half)
 TEST_FRACTION = 0.25
 DEFAULT_SCENES = 40_000
 MAX_SCENES = 1 << 24
@@ -90,7 +96,6 @@ FAMILY_AXES = ('obstacle', 'vegetation', 'terrain', 'sensor')  # the hold-out ax
 SYNTH3_FAMILIES = ('rock', 'slab', 'rubble', 'log', 'stump', 'brush', 'box', 'crate', 'bucket',
                    'pipe', 'tire', 'cinder_block', 'post', 'cone', 'coil', 'pallet', 'sack')
 _DENSITY = (1000.0, 5000.0)  # returns per m^2, log-uniform
-_FAR = 32.0  # [m] returns farther from the tile centre (on any axis) are not stored
 
 
 def _choice(rng: np.random.Generator, weights: dict[str, float]) -> str:
@@ -104,14 +109,12 @@ def _r(v: float, digits: int = 4) -> float:
 
 
 def _pair_split(pair: int) -> str:
-    from landing_zone.tools.sim.sweeps import mix as _mix
-    h = int(_mix(np.uint64(pair) + np.uint64(0x53_3D << 32)) % np.uint64(1000))
+    h = int(mix(np.uint64(pair) + np.uint64(0x53_3D << 32)) % np.uint64(1000))
     return 'test' if h < int(1000 * TEST_FRACTION) else 'train'
 
 
 def _pair_unsafe_member(pair: int) -> int:
-    from landing_zone.tools.sim.sweeps import mix as _mix
-    return int(_mix(np.uint64(pair) * np.uint64(0x9E37) + np.uint64(3)) & np.uint64(1))
+    return int(mix(np.uint64(pair) * np.uint64(0x9E37) + np.uint64(3)) & np.uint64(1))
 
 
 def _terrain_plan(rng: np.random.Generator) -> dict[str, Any]:
@@ -187,7 +190,6 @@ def _check_index(index: int) -> int:
 
 def _train_among(names: Sequence[str]) -> tuple[str, ...]:
     """The train families among ``names``, in their order (what a train pair draws from)."""
-    from landing_zone.tools.sim.families import get_family
     return tuple(n for n in names if get_family(n).split == 'train')
 
 
@@ -227,11 +229,9 @@ def check_edge(edge: float) -> float:
     return round(float(edge), 3)
 
 
-def _variant_key(families: tuple[str, ...] | None, edge: float,
-                 vegetation: tuple[str, ...] | None = None) -> list[int]:
+def variant_key(families: tuple[str, ...] | None, edge: float,
+                vegetation: tuple[str, ...] | None = None) -> list[int]:
     """What a dataset other than synth3's own mixes into every seed (nothing for its own)."""
-    from landing_zone.tools.sim.families import get_family
-    from landing_zone.tools.sim.vegetation import VEGETATION_FAMILIES
     key = [] if families is None else [get_family(n).code for n in families]
     key += [_EDGE, int(round(1000 * edge))] if edge > 0 else []
     return key + ([_VEGETATION] + [VEGETATION_FAMILIES.index(n) for n in vegetation]
@@ -245,8 +245,6 @@ def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None,
     pairs whose obstacle stands at the tile's edge (the plan's ``edge``: which side, where
     along it, how far beyond it in the safe scene, how far in in the unsafe one);
     ``vegetation``: the vegetation families to draw from (None: synth3's own six)."""
-    from landing_zone.tools.sim.families import TEST_BASE
-    from landing_zone.tools.sim.vegetation import SYNTH3_VEGETATION, check_vegetation, draw_vegetation
     index = _check_index(index)
     fams = check_families(families)
     edge = check_edge(edge)
@@ -255,7 +253,7 @@ def scene_plan(index: int, seed: int = 0, families: Sequence[str] | None = None,
     split = _pair_split(pair)
     unsafe = (index % 2) == _pair_unsafe_member(pair)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, pair, _PLAN]
-                                                       + _variant_key(fams, edge, vegs)))
+                                                       + variant_key(fams, edge, vegs)))
     every = SYNTH3_FAMILIES if fams is None else fams
     pool = _train_among(every) if split == 'train' else every
     family = pool[int(rng.integers(len(pool)))]
@@ -308,11 +306,6 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
     with other ``families``, their names under ``obstacle_families``; with ``edge``, the share
     and its ranges under ``edge``; with other ``vegetation``, its names under
     ``vegetation_families``)."""
-    from landing_zone.tools.sim.shards import FORMAT_VERSION, shard_name as _shard_name
-    from landing_zone.tools.sim.families import get_family
-    from landing_zone.tools.sim.scene import PatchConfig
-    from landing_zone.tools.sim.vegetation import (SAFE_SHRUB_HEIGHT, SYNTH3_VEGETATION,
-                                             check_vegetation)
     chosen = check_families(families)
     edge = check_edge(edge)
     vegs = check_vegetation(vegetation)
@@ -326,7 +319,7 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
     for k in range(0, len(plans), shard_size):
         chunk = plans[k:k + shard_size]
         fams = [families_of(p) for p in chunk]
-        shards.append({'file': _shard_name(k // shard_size), 'scenes': len(chunk),
+        shards.append({'file': shard_name(k // shard_size), 'scenes': len(chunk),
                        'first_index': chunk[0]['index'],
                        'test': ''.join('1' if p['split'] == 'test' else '0' for p in chunk),
                        'labels': ''.join(str(p['label']) for p in chunk),
@@ -340,7 +333,7 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
         **({'obstacle_families': list(chosen)} if chosen is not None else {}),
         **({'vegetation_families': list(vegs)} if vegs is not None else {}),
         **({'edge': {'share': edge, 'gap': list(EDGE_GAP), 'reach': list(EDGE_REACH),
-                     'tall': _EDGE_TALL, 'pairs': sum('edge' in p for p in plans) // 2}}
+                     'tall': EDGE_TALL, 'pairs': sum('edge' in p for p in plans) // 2}}
            if edge > 0 else {}),
         'obstacle_split': {'train': list(train),
                            'test': [n for n in every if n not in train],
@@ -356,154 +349,3 @@ def plan_meta(seed: int, split: str, scenes: int | None, shard_size: int,
                   'points_unit': 'mm (int16)'},
         'shards': shards,
     }
-
-
-# --- one scene ---------------------------------------------------------------------------------
-
-def _scanner(plan: dict[str, Any], aoi: tuple[np.ndarray, np.ndarray],
-             box: tuple[np.ndarray, np.ndarray]) -> tuple[Any, np.ndarray, dict[str, Any]]:
-    """The sensor of a plan: its configuration, the corners of where it can be, its scan's
-    own settings."""
-    from landing_zone.tools.sim.flyover import Flyover, plan_flyover
-    from landing_zone.tools.sim.scene import hover_plan
-    from landing_zone.tools.sim.sensor import ScanPattern, SensorConfig
-    s = plan['sensor']
-    if s['family'] == 'nodding':
-        sensor = SensorConfig(angular_resolution=s['resolution'], target_density=s['density'])
-        position = np.array([s['offset'], 0.0, s['height']])
-        omega, wander, sources = hover_plan(sensor, position, *aoi)
-        return sensor, sources, {'kind': 'hover', 'position': position, 'omega': omega,
-                                 'wander': wander}
-    if s['family'] == 'line':
-        sensor = SensorConfig(prr=s['prr'], angular_resolution=s['resolution'],
-                              target_density=s['density'])
-        pattern = ScanPattern('line')
-    else:
-        # Lines of 1001 pulses group the returns by origin, as in flights.
-        sensor = SensorConfig(prr=s['prr'], target_density=s['density'])
-        extra = {k: s[k] for k in ('beams', 'beam_fov', 'spin_rate', 'fov') if k in s}
-        pattern = ScanPattern(s['family'], **extra)
-    fly = Flyover(pattern, s['height'], s['tilt'], s['cross'], s['heading'])
-    fplan = plan_flyover(sensor, fly, *aoi, *box)
-    return sensor, fplan.sources(fly, sensor), {'kind': 'flyover', 'fly': fly, 'plan': fplan}
-
-
-def _region(sources: np.ndarray, box: tuple[np.ndarray, np.ndarray], amplitude: float,
-            slope: float, azimuth: float, top: float) -> np.ndarray:
-    """Where rays through the column can be inside the ground-cover layer: the scene module's
-    view region, its layer following the slope."""
-    from landing_zone.tools.sim.scene import view_region
-    g = math.tan(math.radians(slope))
-    grade = np.array([g * math.cos(azimuth), g * math.sin(azimuth)])
-    return view_region(sources, box[0], box[1], -amplitude - 0.01, amplitude + top + 0.01, top,
-                       grade=grade)
-
-
-def generate_scene(index: int, seed: int = 0, threads: int = 1,
-                   families: Sequence[str] | None = None, edge: float = 0.0,
-                   vegetation: Sequence[str] | None = None) -> dict[str, Any]:
-    """Simulate scene ``index`` of synth3 (drawing from ``families``, None: synth3's own;
-    ``edge``: the share of pairs at the tile's edge; ``vegetation``: from these vegetation
-    families, None: synth3's own): the
-    record :func:`landing_zone.tools.sim.dataset.generate_scene` returns (``points_mm``,
-    ``hit_class``, ``origin_index``, ``origins``, ``origin_times``, ``label``, ``split``,
-    ``params``, ``rays``, ``timings``)."""
-    from landing_zone.tools.sim.families import instance, keep_visible
-    from landing_zone.tools.sim.flyover import flyover_scan
-    from landing_zone.tools.sim.mesh import Mesh
-    from landing_zone.tools.sim.obstacles import at_edge, place
-    from landing_zone.tools.sim.scene import PatchConfig, World
-    from landing_zone.tools.sim.sensor import hover_scan
-    from landing_zone.tools.sim.terrain import SlopedTerrain, TerrainConfig
-    from landing_zone.tools.sim.vegetation import (build_vegetation, check_vegetation, hide_obstacle,
-                                             vegetation_top)
-
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    fams = check_families(families)
-    edge = check_edge(edge)
-    vegs = check_vegetation(vegetation)
-    plan = scene_plan(index, seed, fams, edge, vegs)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), SYNTH3_CODE, int(index)]
-                                                       + _variant_key(fams, edge, vegs)))
-    patch = PatchConfig()
-    aoi, box = patch.aoi, patch.column
-    inst = instance(plan['family'], plan['instance'])
-    model = inst.model
-    veg = plan['vegetation']
-    if plan['hide'] is not None:
-        veg = hide_obstacle(veg, plan['hide'] * (model.size[2] - model.embed))
-    top = vegetation_top(veg)
-    tp = plan['terrain']
-    sensor, sources, scan = _scanner(plan, aoi, box)
-    region = _region(sources, box, tp['amplitude'], tp['slope'], tp['azimuth'], top)
-    lo, hi = region.min(axis=0), region.max(axis=0)
-    timings['plan'] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    tcfg = TerrainConfig(amplitude=tp['amplitude'], wavelength=tp['wavelength'],
-                         octaves=tp['octaves'], spacing=tp['spacing'])
-    pad = 2.0 * tcfg.spacing
-    terrain = SlopedTerrain(tcfg, rng, lo - pad, hi + pad, tp['slope'], tp['azimuth'])
-    obstacle = None
-    if 'edge' in plan:  # both scenes of the pair: reaching in, or beyond the edge
-        e, unsafe = plan['edge'], plan['label'] == 0
-        x, y = at_edge(model, e['yaw'], e['side'], e['along'], 0.5 * patch.tile_size,
-                       _EDGE_TALL, reach=e['reach'] if unsafe else None,
-                       gap=None if unsafe else e['gap'])
-        obstacle = keep_visible(place(model, x, y, e['yaw'], terrain), terrain)
-    elif plan['label'] == 0:
-        # Inside the tile for any yaw, or straddling its edge with half its radius inside (as
-        # synth2 places them).
-        free = (0.5 * patch.tile_size - model.radius if plan['inside']
-                else 0.5 * patch.tile_size + 0.5 * model.radius)
-        x, y = rng.uniform(-free, free, 2)
-        obstacle = place(model, float(x), float(y), float(rng.uniform(0.0, 2.0 * np.pi)),
-                         terrain)
-        obstacle = keep_visible(obstacle, terrain)
-    keep_out = ([(obstacle.x, obstacle.y, model.radius + 0.05)] if obstacle is not None
-                else [])
-    cover, ground_cover, bushes = build_vegetation(veg, terrain, rng, region, keep_out, aoi)
-    world = World(terrain, Mesh.concat([cover, ground_cover]),
-                  [obstacle] if obstacle is not None else [])
-    timings['world'] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    caster = world.caster(threads)
-    timings['bvh'] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    if scan['kind'] == 'hover':
-        result = hover_scan(caster, replace(sensor, nod_rate=scan['omega']), scan['position'],
-                            *aoi, *box, rng, wander_bound=scan['wander'])
-        how = {'nod_rate': round(result.nod_rate, 3), 'sweeps': result.sweeps}
-    else:
-        result = flyover_scan(caster, sensor, scan['fly'], scan['plan'], *aoi, *box, rng)
-        how = {'speed': round(result.speed, 3)}
-    timings['scan'] = time.perf_counter() - t0
-    ret = result.returns
-    # Returns are stored as int16 millimetres: a ray that crossed the column high up and came
-    # down more than 32 m away (a view grazing ground that falls away) is dropped; the column
-    # only loses a few pass-throughs near its top.
-    far = np.any(np.abs(ret.points) > _FAR, axis=1)
-    if far.any():
-        keep = ~far
-        ret = type(ret)(ret.points[keep], ret.labels[keep], ret.times[keep], ret.line[keep],
-                        ret.line_origins, ret.line_times).compact_lines()
-    mm = np.rint(ret.points * 1000.0)
-    if len(ret.line_times) > np.iinfo(np.uint16).max:
-        raise SimulationError(f'synth3 scene {index}: more than 65535 scan lines')
-    params = dict(plan)
-    params['vegetation'] = veg
-    params.update({
-        'obstacle': (dict(obstacle.to_json(), **inst.to_json()) if obstacle is not None
-                     else None),
-        'n_returns': int(len(ret)), 'density': round(result.density, 1),
-        **({'far_dropped': int(far.sum())} if far.any() else {}),
-        'scan_time': round(result.duration, 4), 'n_faces': int(world.grass.n_faces),
-        'bushes': len(bushes), 'region_m2': round(float(np.prod(hi - lo)), 2),
-        'seed': int(seed), **how})
-    return {'points_mm': mm.astype(np.int16), 'hit_class': ret.labels.astype(np.uint8),
-            'origin_index': ret.line.astype(np.uint16),
-            'origins': ret.line_origins.astype(np.float32),
-            'origin_times': ret.line_times.astype(np.float32),
-            'label': plan['label'], 'split': plan['split'], 'params': params,
-            'rays': result.rays, 'timings': dict(timings, cast=result.cast_seconds)}

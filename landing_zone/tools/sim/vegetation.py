@@ -1,7 +1,8 @@
 """Vegetation families for dataset patches: how the ground of a tile is covered.
 
 Each family draws its parameters from a scene's plan (:func:`draw_vegetation`) and builds its
-meshes with the blades and shrubs of :mod:`landing_zone.tools.sim.grass` (:func:`build_vegetation`);
+meshes with the blades and shrubs of :mod:`landing_zone.tools.sim.grass`
+(:func:`build_vegetation`);
 nothing here is a second grass model. All of them are safe ground: the label of a patch is the
 presence of an obstacle only.
 
@@ -21,7 +22,8 @@ presence of an obstacle only.
               own density, height (3-42 cm), width, lean, curvature and clumping (none, or
               clumps of 5-400 blades 1.5-25 cm in radius: tufts to porous bunches half a metre
               across), sometimes over a flattened mat; no leaves (see below)
-``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.tools.sim.leafy`): one or two
+``forb``      a prior of herbaceous broadleaf plants (:mod:`landing_zone.tools.sim.leafy`): one or
+two
               kinds a patch, 2-40 plants per m^2, 5-40 cm, one to eight thin stems each with
               2-12 flat leaves of 2-10 cm along them or lying in a rosette at the foot, over
               sparse to dense short grass; no canopy, nothing woody (see below)
@@ -36,13 +38,11 @@ they were); the priors ``meadow``, ``forb`` and ``canopy`` came after it and are
 when asked for (``simulate --dataset synth3 --vegetation meadow,forb``). Made of blades alone,
 ``meadow`` holds nothing of ``shrub`` (leafy canopies), so ``shrub`` held out stays unseen with
 meadow in training; its clumped layers do cover ``tussock``'s clumps, so ``tussock`` held out
-no longer is (what it does as training data, little: ``experiments/2026-12-04_meadow_prior``).
-``forb`` is leaves on stems, not a canopy: it shares leaves with ``shrub`` but not
+no longer is. ``forb`` is leaves on stems, not a canopy: it shares leaves with ``shrub`` but not
 its shape (a rounded volume of leaves up to 70 cm across), so ``shrub`` held out with ``forb``
 in training is a shape never seen made of a material seen. ``canopy`` spans ``shrub``'s shapes
 (one dome 15-35 cm high, 0.3-0.7 m across) among many others: with it in training, ``shrub``
-held out is covered, not unseen, as ``tussock`` is by ``meadow``. What both do:
-``experiments/2026-12-04_leafy_priors``.
+held out is covered, not unseen, as ``tussock`` is by ``meadow``.
 
 **Which shrubs count as safe**: those of this family, at most :data:`SAFE_SHRUB_HEIGHT` high,
 made of leaves and twigs no thicker than 8 mm, which a landing skid pushes aside like tall
@@ -60,10 +60,10 @@ import numpy as np
 
 from landing_zone.errors import SimulationError
 from landing_zone.tools.sim.leafy import (CrownForm, ForbForm, crown_mesh, crown_top, forb_mesh,
-                                    forb_top)
+                                          forb_top)
 from landing_zone.tools.sim.grass import (Bush, ScaleField, VegetationConfig, blade_strips,
-                                    bush_mesh, place_bushes, points_in_polygon, scatter,
-                                    vegetation_blades)
+                                          bush_mesh, place_bushes, points_in_polygon, scatter,
+                                          vegetation_blades)
 from landing_zone.tools.sim.mesh import GROUND, Mesh
 from landing_zone.tools.sim.terrain import Terrain
 

@@ -17,8 +17,10 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from landing_zone.tools.evaluate.baselines.bow import BowForest
-from landing_zone.tools.evaluate.baselines.features import FEATURE_NAMES, VoxelFeatures, voxel_features
-from landing_zone.tools.evaluate.baselines.plane import PlaneResiduals, fit_plane, plane_residual_sum
+from landing_zone.tools.evaluate.baselines.features import FEATURE_NAMES, VoxelFeatures, \
+    voxel_features
+from landing_zone.tools.evaluate.baselines.plane import PlaneResiduals, fit_plane, \
+    plane_residual_sum
 from landing_zone.tools.evaluate.baselines.raw_forest import RawForest
 from landing_zone.tools.evaluate.baselines.volumes import VolumeGeometry, as_volumes
 

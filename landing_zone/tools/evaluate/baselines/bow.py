@@ -1,10 +1,10 @@
 """Bag of words over hand-crafted voxel features, then a random forest.
 
 The paper's strongest baseline, the classic point-cloud classification pipeline: describe every
-occupied voxel of the tile by local features (:mod:`landing_zone.tools.evaluate.baselines.features`),
-learn a codebook of 512 feature "words" by k-means on a quarter of the training volumes,
-describe each
-volume by its soft histogram over the words, and classify the histograms with a random forest.
+occupied voxel of the tile by local features
+(:mod:`landing_zone.tools.evaluate.baselines.features`), learn a codebook of 512 feature "words"
+by k-means on a quarter of the training volumes, describe each volume by its soft histogram over
+the words, and classify the histograms with a random forest.
 
 Soft quantisation: each voxel spreads a unit of weight over its ``neighbours`` nearest words
 with a Gaussian kernel ``exp(-d^2 / (2 sigma^2))``, sigma^2 being the median squared distance

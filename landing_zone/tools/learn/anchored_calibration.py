@@ -1,12 +1,12 @@
-"""The calibration of a fine-tuned model: the initial model's, guarded on reference obstacles.
+"""The calibration of a fine-tuned model: the initial model's, anchored on reference obstacles.
 
 ``train`` fits the temperature on its validation scenes: right for a model trained from
 scratch, wrong for one fine-tuned from a model whose calibration was fitted on families it never
 saw (``landing-zone calibrate``): the refit keeps P(safe) honest on the training families only
-and drops what the initial model knew about unfamiliar ones (measured: the obstacle tiles of
-synth3's test families passed at P(safe) >= 0.9 rose from 49 to 114 of 773). So a fine-tuned
-model keeps the initial model's ``T`` and ``b``, and a guard lowers ``b`` (never raises it)
-until, on reference obstacle tiles (the fine-tuning's validation scenes with an obstacle, of
+and drops what the initial model knew about unfamiliar ones, so more obstacles of unseen
+families pass. So a fine-tuned model keeps the initial model's ``T`` and ``b``, anchored: ``b``
+is lowered (never raised) until, on reference obstacle tiles (the fine-tuning's validation scenes
+with an obstacle, of
 every training source apart), it passes no more at each threshold (0.5 and 0.9) than the initial
 model did. Lowering ``b`` keeps the ranking (no AUC changes) and only ever makes tiles less safe.
 
@@ -21,9 +21,9 @@ import numpy as np
 
 from landing_zone.errors import ConfigError
 
-__all__ = ['THRESHOLDS', 'guarded_offset', 'passes']
+__all__ = ['THRESHOLDS', 'anchored_offset', 'passes']
 
-THRESHOLDS = (0.5, 0.9)  # the P(safe) a planner acts on; the guard holds at each
+THRESHOLDS = (0.5, 0.9)  # the P(safe) a planner acts on; the anchor holds at each
 
 
 def passes(logits, temperature: float, offset: float, threshold: float) -> int:
@@ -32,9 +32,9 @@ def passes(logits, temperature: float, offset: float, threshold: float) -> int:
     return int((z >= np.log(threshold / (1.0 - threshold))).sum())
 
 
-def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: float,
-                   groups=None, thresholds: Sequence[float] = THRESHOLDS
-                   ) -> tuple[float, dict[str, Any]]:
+def anchored_offset(new_logits, init_logits, labels, temperature: float, offset: float,
+                    groups=None, thresholds: Sequence[float] = THRESHOLDS
+                    ) -> tuple[float, dict[str, Any]]:
     """The largest offset ``b' <= offset`` under which the fine-tuned net, at temperature ``T``,
     passes no more reference obstacle tiles at each threshold, in each group, than the initial
     net does at its own ``(T, offset)``.
@@ -45,7 +45,7 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
         labels: (N,) 1 safe, 0 unsafe; only the unsafe tiles count.
         temperature, offset: the initial model's calibration (kept for the fine-tuned one,
             ``offset`` lowered where needed).
-        groups: (N,) which training source each tile came from (default: one group); the guard
+        groups: (N,) which training source each tile came from (default: one group); the anchor
             holds in each.
         thresholds: P(safe) levels, each in (0, 1).
 
@@ -53,7 +53,7 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
         ``(b', report)``: the report gives, per group, the largest offset that group alone
         allows (``offset_limit``: the group with the lowest one set ``b'``) and, per threshold,
         the obstacle tiles passed by the initial model and by the fine-tuned one before and
-        after the guard.
+        after the anchoring.
 
     Raises:
         ConfigError: mismatched lengths, non-finite logits, a bad temperature or threshold.
@@ -93,8 +93,8 @@ def guarded_offset(new_logits, init_logits, labels, temperature: float, offset: 
     for entry in report['groups']:
         sel = (y == 0) & (g == entry['group'])
         entry['passed'] = {str(t): {'initial': passes(zi[sel], temperature, offset, t),
-                                    'unguarded': passes(zn[sel], temperature, offset, t),
-                                    'guarded': passes(zn[sel], temperature, b, t)}
+                                    'unanchored': passes(zn[sel], temperature, offset, t),
+                                    'anchored': passes(zn[sel], temperature, b, t)}
                            for t in thresholds}
     report['offset'] = b
     return b, report
