@@ -6,8 +6,8 @@ node uses. Each assessment is written
 into the output bag at the stamp of the newest cloud it includes (the moment the node would
 have published it) on the node's topics (``/assessor/safety_grid``, ``/assessor/safety_cloud``,
 ``/assessor/landing_sites``, ``/assessor/markers``, ``/diagnostics``); the final state goes to
-REPORT.json (docs/INTERFACES.md §3) and, optionally, a PNG of the safety map over a top view
-of the returns.
+REPORT.json (docs/INTERFACES.md §3). The result keeps a subsample of the returns (``top_view``)
+for pictures of the map, which the offline tools draw.
 
 A survey file (LAS / LAZ, :mod:`landing_zone.io.survey`) replays the same way: its returns and
 sensor trajectory become the same cloud and pose messages, in a local metric frame whose
@@ -131,13 +131,12 @@ class _Outputs:
 
 
 def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = None,
-           report: str | os.PathLike[str] | None = None,
-           png: str | os.PathLike[str] | None = None, *,
+           report: str | os.PathLike[str] | None = None, *,
            points_topic: str = '/lidar/points', pose_topic: str = '/lidar/pose',
            model: str | os.PathLike[str] | None = None,
            center: Sequence[float] | None = None,
            config: AssessorConfig | None = None, stream_config: StreamConfig | None = None,
-           progress: bool = True, labels: str | os.PathLike[str] | None = None,
+           progress: bool = True,
            overlap: bool = True, trajectory: str | os.PathLike[str] | None = None,
            log: Callable[[str], None] | None = None, warm: bool = True,
            cloud_frame: str | None = None,
@@ -148,7 +147,6 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         bag: ROS 2 bag (directory, .mcap or .db3) or ROS 1 .bag with the clouds and poses.
         out: output bag (.mcap file, or a directory) for the node's topics; None: not written.
         report: REPORT.json path; None: not written.
-        png: PNG of the final safety map; None: not drawn.
         points_topic: topic of the clouds (sensor_msgs/PointCloud2).
         pose_topic: topic of the poses: geometry_msgs/PoseStamped or nav_msgs/Odometry (the
             type is read from the bag), the pose of a frame C (docs/INTERFACES.md §1).
@@ -157,7 +155,6 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         config: the pipeline's configuration; default AssessorConfig().
         stream_config: the stream's timing; default StreamConfig().
         progress: show a tqdm progress bar (on a terminal).
-        labels: SITE.labels.json; when given, the PNG marks the true obstacles.
         overlap: judge each pass on a worker thread while the next clouds are integrated
             (the same passes and outputs; False runs them in turn, for comparison).
         trajectory: for a LAS / LAZ ``bag``: the sensor trajectory (CSV ``t,x,y,z`` or SBET);
@@ -287,10 +284,6 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         if res.survey is not None:
             doc['survey'] = res.survey
         _write_json(Path(report), doc)
-    if png is not None:
-        from landing_zone.tools.map_png import render_png
-
-        render_png(result, top, png, labels=labels)
     res.timings['report'] = time.perf_counter() - t_report
     res.seconds = time.perf_counter() - t_start
     return res

@@ -22,7 +22,7 @@
 # data/synth3_test`), NAME (of the adapted model, default site), FLIGHT_ARGS (more options for
 # simulate-flight, e.g. "--scan-pattern rosette"), TRAIN_ARGS (more options for train, e.g.
 # "--leniency-penalty 0 --calibration refit" for plain fine-tuning, with GUARD_ARGS=), GUARD_ARGS
-# (default --guard-data WORKDIR/guard_thin; empty: the guard holds on the training sources'
+# (default --anchor-data WORKDIR/guard_thin; empty: the guard holds on the training sources'
 # validation obstacles only). Flights and data sets already in WORKDIR are reused; an adapted model
 # already there is kept.
 set -euo pipefail
@@ -51,7 +51,7 @@ done
 # the guard set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
 "$lz" simulate --dataset synth3 --families frame,mesh --split train --scenes 600 \
     --out "$work/guard_thin" --seed 0 --quiet
-guard_args=${GUARD_ARGS---guard-data $work/guard_thin}
+guard_args=${GUARD_ARGS---anchor-data $work/guard_thin}
 # shellcheck disable=SC2086  # TRAIN_ARGS and guard_args are lists of options
 [ -f "$adapted" ] || \
 "$lz" train --init "$shipped" --data "$work/hybrid" --data "$work/synth3_some" \

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', 'config', 'models',
+SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', 'config', 'launch', 'models',
            'landing_zone', 'msg_adapters')
 
 
@@ -61,6 +61,7 @@ def test_colcon_style_install_layout(source, tmp_path):
     assert (share / 'landing_zone' / 'package.xml').read_text() == \
         (source / 'package.xml').read_text()
     assert (share / 'landing_zone' / 'config' / 'assessor.yaml').is_file()
+    assert (share / 'landing_zone' / 'launch' / 'assessor.launch.py').is_file()
     shipped = sorted(p.name for p in (source / 'models').iterdir()
                      if p.suffix in ('.safetensors', '.md'))
     installed = sorted(p.name for p in (share / 'landing_zone' / 'models').iterdir())

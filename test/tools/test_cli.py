@@ -49,12 +49,13 @@ def test_simulate_families_are_checked_in_one_line(tmp_path):
     assert not (tmp_path / 'd').exists()
 
 
-def test_train_guard_data_is_checked_in_one_line(tmp_path):
-    """A guard set must be held out of the fine-tuning and needs the guarded calibration."""
+def test_train_anchor_data_is_checked_in_one_line(tmp_path):
+    """An anchor set must be held out of the fine-tuning and needs the anchored calibration
+    (also under the option's former name, --guard-data)."""
     data, out = tmp_path / 'some', tmp_path / 'm.safetensors'
-    for args, words in ((('--init', 'models/landing_zone.safetensors', '--guard-data', str(data)),
-                         'both training data and guard data'),
-                        (('--guard-data', str(tmp_path / 'thin')), 'guarded calibration')):
+    for args, words in ((('--init', 'models/landing_zone.safetensors', '--anchor-data', str(data)),
+                         'both training data and anchor data'),
+                        (('--guard-data', str(tmp_path / 'thin')), 'anchored calibration')):
         res = run_cli('train', '--data', str(data), '--out', str(out), *args)
         assert res.returncode == 2 and 'Traceback' not in res.stderr, res.stderr
         assert len(res.stderr.strip().splitlines()) == 1 and words in res.stderr, res.stderr

@@ -1,6 +1,7 @@
 """The `landing-zone` command line (also `python -m landing_zone`).
 
-One module per stage: run (demo, replay, play), sim, learn, calibrate, evaluate, bench. Each
+One module per stage: run (demo, replay, play), sim, recorded (insert-obstacles), learn,
+calibrate, evaluate, bench. Each
 command parses its options and calls one library function. What a command needs beyond the
 robot's install (the simulator, the training, matplotlib, Ray) is imported inside it, so that
 `landing-zone --help` is instant and `landing-zone replay` runs on the robot. Errors the core
@@ -15,7 +16,7 @@ from typing import Annotated, Any
 import typer
 
 from landing_zone.errors import LandingZoneError
-from landing_zone.tools.cli import bench, calibrate, evaluate, learn, run, sim
+from landing_zone.tools.cli import bench, calibrate, evaluate, learn, recorded, run, sim
 
 __all__ = ['app', 'main', 'command']
 
@@ -38,7 +39,7 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 # the stages in the order the help lists them; learn's LAZY commands lead its own
-STAGES = (run, sim, learn, calibrate, evaluate, bench)
+STAGES = (run, sim, recorded, learn, calibrate, evaluate, bench)
 for _stage in STAGES:
     app.add_typer(_stage.app)
 

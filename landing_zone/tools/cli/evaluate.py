@@ -98,8 +98,7 @@ def evaluate_flights(
     pose_topic: Annotated[str, typer.Option(help=POSE_HELP)] = '/lidar/pose',
     center: Annotated[Optional[tuple[float, float]], typer.Option(
         metavar='X Y', help="Centre of every flight's region of interest; default: the "
-                            "centre of its labels' extent (the labelled site is scored).")
-    ] = None,
+                            "centre of its labels' extent (the labelled site is scored).")] = None,
 ) -> None:
     from landing_zone.tools.evaluate.flights import evaluate_flights as run_flights
     from landing_zone.tools.evaluate.flights import markdown_flights

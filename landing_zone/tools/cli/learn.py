@@ -21,9 +21,9 @@ TRAIN_HELP = ('Train the safety CNN on a dataset\'s train split (augmented on th
               'Fine-tuning (--init) is never more lenient on obstacles than the --init model: '
               'the loss adds the squared excess of the logit of every obstacle sample the net '
               'judges safer than the --init model does (weighted by --leniency-penalty), and '
-              'the guarded calibration keeps the --init model\'s T and b (fitted out of family by '
-              'landing-zone calibrate), b lowered until, on the validation obstacles of each '
-              '--data and --guard-data, no more pass at P(safe) >= 0.5 or 0.9 than under the '
+              'the anchored calibration keeps the --init model\'s T and b (fitted out of family '
+              'by landing-zone calibrate), b lowered until, on the validation obstacles of each '
+              '--data and --anchor-data, no more pass at P(safe) >= 0.5 or 0.9 than under the '
               '--init model; refit fits T on the validation scenes (of the training families '
               'only).\n\n'
               'Examples:\n\n  landing-zone train --data data/synth2 '
@@ -34,7 +34,7 @@ TRAIN_HELP = ('Train the safety CNN on a dataset\'s train split (augmented on th
               '  landing-zone train --init models/landing_zone.safetensors --data hybrid/ '
               '--data synth3_some/ --out site.safetensors --lr 0.001 --epochs 4  (site '
               'adaptation; never more lenient on obstacles than the --init model: see '
-              '--leniency-penalty, --calibration, --guard-data)\n\n'
+              '--leniency-penalty, --calibration, --anchor-data)\n\n'
               '  landing-zone train --data data/synth3 --hold-out obstacle:log --out '
               'lofo_log.safetensors  (leave one family out)')
 # TrainConfig's fields that train takes as options (the augmentation's z_shift and yaw are
@@ -55,10 +55,11 @@ def train(
     init: Annotated[Optional[Path], typer.Option(
         help='Start from this model\'s weights (same spec): fine-tuning, e.g. to a site; see '
              '--leniency-penalty and --calibration.')] = None,
-    guard_data: Annotated[Optional[list[Path]], typer.Option(
-        help='With the guarded calibration: a dataset never trained on (e.g. synth3 of '
-             '--families frame,mesh) whose obstacle scenes the guard also holds on, as a '
-             'group of its own; repeat for more.')] = None,
+    anchor_data: Annotated[Optional[list[Path]], typer.Option(
+        '--anchor-data', '--guard-data',
+        help='With the anchored calibration: a dataset never trained on (e.g. synth3 of '
+             '--families frame,mesh) whose obstacle scenes the calibration also holds on, as '
+             'a group of its own; repeat for more (--guard-data: its former name).')] = None,
     **options: Any,
 ) -> None:
     from landing_zone.judging.checkpoint import read_metadata
@@ -69,7 +70,7 @@ def train(
         options['arch'] = (read_metadata(init)['model']['spec'] if init is not None
                            else DEFAULT_SPEC)
     cfg = TrainConfig(**config_values(TrainConfig, options))
-    s = run_train(data, out, cfg, resume=resume, init=init, guard_data=guard_data or None)
+    s = run_train(data, out, cfg, resume=resume, init=init, anchor_data=anchor_data or None)
     print(f'wrote {s["out"]}: {s["spec"]}, {s["epochs"]} epochs, {s["samples"]:,} samples in '
           f'{s["train_seconds"]:.0f} s; validation AUC {s["val_auc"]}, ECE {s["val_ece"]} '
           f'at temperature {s["temperature"]:.3f}, offset {s["offset"]:+.3f} '

@@ -33,7 +33,8 @@ ENGINE_HELP = ('local: processes on this machine; ray: Ray tasks on a cluster (-
 ADDRESS_HELP = ('Ray cluster address (ray://HOST:10001, HOST:6379 or auto); default '
                 'RAY_ADDRESS, else a local cluster of --workers CPUs.')
 POINTS_HELP = 'PointCloud2 topic (fixed frame).'
-POSE_HELP = 'PoseStamped topic of the sensor.'
+POSE_HELP = ('Pose topic: PoseStamped of the sensor, or Odometry of the body (the type is read '
+             'from the bag).')
 
 
 def config_options(cls: type, names: Sequence[str] | Mapping[str, str], *,

@@ -10,6 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from landing_zone.ros.play import WAIT_SUBSCRIBERS
 from landing_zone.tools.cli.options import POINTS_HELP, POSE_HELP
 
 app = typer.Typer()
@@ -18,6 +19,12 @@ app = typer.Typer()
 class Reliability(str, Enum):
     reliable = 'reliable'
     best_effort = 'best_effort'
+
+
+class CloudFrame(str, Enum):
+    fixed = 'fixed'
+    body = 'body'
+    sensor = 'sensor'
 
 
 @app.command(help='The main job on the embedded default: simulate a vegetated landing-site '
@@ -89,6 +96,14 @@ def replay(
     trajectory: Annotated[Optional[Path], typer.Option(
         help='LAS / LAZ only: sensor positions over time, CSV t,x,y,z or SBET; default: '
              'derived from GPS time and scan angle.')] = None,
+    cloud_frame: Annotated[Optional[CloudFrame], typer.Option(
+        help='Where the returns are: fixed (registered in the pose\'s frame), body (in the '
+             'pose\'s child frame) or sensor (in the LiDAR\'s own frame); default: the '
+             'parameters\' cloud_frame (fixed).')] = None,
+    sensor_offset: Annotated[Optional[tuple[float, float, float, float, float, float]],
+                             typer.Option(metavar='X Y Z ROLL PITCH YAW', help=(
+                                 'The LiDAR\'s pose in the pose input\'s frame [m, rad]; '
+                                 'default: the parameters\' sensor_offset (zeros).'))] = None,
 ) -> None:
     from landing_zone.config import configs_from_flat
     from landing_zone.io.params import read_params_file
@@ -102,6 +117,8 @@ def replay(
     result = run_replay(bag, out, report, points_topic=points_topic, pose_topic=pose_topic,
                         model=model, center=center, config=config,
                         stream_config=stream_config, trajectory=trajectory,
+                        cloud_frame=None if cloud_frame is None else cloud_frame.value,
+                        sensor_offset=sensor_offset,
                         log=lambda line: print(f'note: {line}'))
     if render_png is not None:
         render_png(result.assessment, result.top_view, png, labels=labels)
@@ -164,7 +181,8 @@ def play(
     remap: Annotated[Optional[list[str]], typer.Option(
         help='FROM:=TO topic rename (repeat for more).')] = None,
     wait: Annotated[float, typer.Option(
-        help='Wait up to this many seconds for a subscriber on every topic first.')] = 0.0,
+        help='Wait up to this many seconds for a subscriber on every topic first (0: start at '
+             'once).', min=0.0)] = WAIT_SUBSCRIBERS,
     reliability: Annotated[Reliability, typer.Option(
         help='QoS reliability of the publishers (a LiDAR driver\'s is best_effort).')
     ] = Reliability.reliable,

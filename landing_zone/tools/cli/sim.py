@@ -1,6 +1,6 @@
-"""Simulating: datasets of labelled patches (simulate), flights as bags (simulate-flight),
-virtual obstacles in recorded flights (insert-obstacles) and pictures of what the simulator
-made (render). The simulator (trimesh, embreex) is the `[sim]` extra, imported by each command."""
+"""Simulating: datasets of labelled patches (simulate), flights as bags (simulate-flight)
+and pictures of what the simulator made (render). The simulator (trimesh, embreex) is the
+`[sim]` extra, imported by each command."""
 from __future__ import annotations
 
 import math
@@ -10,8 +10,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from landing_zone.tools.cli.options import (ADDRESS_HELP, ENGINE_HELP, POINTS_HELP, POSE_HELP,
-                                            Engine)
+from landing_zone.tools.cli.options import ADDRESS_HELP, ENGINE_HELP, Engine
 
 app = typer.Typer()
 
@@ -185,6 +184,16 @@ def simulate_flight(
         help='Flight speed [m/s]; default: the speed that gives the target density.')] = None,
     seed: Annotated[int, typer.Option(help='Seed of the site and the flight.')] = 0,
     overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
+    odometry: Annotated[bool, typer.Option(
+        help='Write the flight as LiDAR-inertial odometry publishes it: nav_msgs/Odometry of '
+             'a body frame and clouds in the body (or sensor) frame, the LiDAR mounted at '
+             '--sensor-offset.')] = False,
+    cloud_frame: Annotated[str, typer.Option(
+        help='With --odometry: body or sensor.')] = 'body',
+    sensor_offset: Annotated[Optional[tuple[float, float, float, float, float, float]],
+                             typer.Option(metavar='X Y Z ROLL PITCH YAW', help=(
+                                 'With --odometry: the LiDAR\'s pose in the body frame [m, '
+                                 'rad]; default a small, non-zero mount.'))] = None,
 ) -> None:
     from landing_zone.tools.sim.flight import flight_config, simulate_flight as run_flight
     from landing_zone.tools.sim.placement import DEFAULT_KINDS
@@ -201,11 +210,29 @@ def simulate_flight(
                         inclination_std=lean, max_height=max_grass_height,
                         bush_density=bushes, height=height, tilt=tilt,
                         line_spacing=line_spacing, speed=speed, seed=seed)
+    if odometry:
+        _odometry_flight(cfg, out, cloud_frame, sensor_offset, overwrite)
+        return
     r = run_flight(cfg, out, overwrite=overwrite)
     print(f'wrote {r.bag} ({r.clouds} clouds, {r.points:,} returns, {r.duration:.1f} s of '
           f'flight at {r.speed:.1f} m/s in {r.passes} pass(es), {r.density:.0f} returns/m^2 '
           f'over the site; vegetation {vegetation}, scan pattern {scan_pattern}) and '
           f'{r.labels} ({r.unsafe_tiles} of {r.tiles} tiles unsafe)')
+
+
+def _odometry_flight(cfg: object, out: Path, cloud_frame: str,
+                     sensor_offset: Optional[tuple[float, ...]], overwrite: bool) -> None:
+    from landing_zone.tools.sim.odometry_flight import DEFAULT_OFFSET, simulate_odometry_flight
+
+    if cloud_frame not in ('body', 'sensor'):
+        raise typer.BadParameter(f'body or sensor, got {cloud_frame!r}',
+                                 param_hint='--cloud-frame')
+    r, odo = simulate_odometry_flight(cfg, out, cloud_frame=cloud_frame, overwrite=overwrite,
+                                      sensor_offset=sensor_offset or DEFAULT_OFFSET)
+    print(f'wrote {odo.bag} ({r.clouds} clouds, {r.points:,} returns, odometry on '
+          f'{odo.pose_topic}, clouds in the {odo.cloud_frame} frame on {odo.points_topic}) and '
+          f'{r.labels}; replay it with: landing-zone replay {odo.bag} '
+          + ' '.join(odo.replay_args()))
 
 
 @app.command(help='Side and top view of simulated returns coloured by what they hit (ground, '
@@ -225,63 +252,3 @@ def render(
     from landing_zone.tools.sim.render import render as run_render
 
     print(f'wrote {run_render(source, out, index=index, split=split)}')
-
-
-@app.command(name='insert-obstacles',
-             help='Insert virtual obstacles of the simulator\'s library or its obstacle families '
-                  'into a recorded flight: '
-                  'every return whose ray meets an obstacle first moves onto its surface (plus '
-                  'range noise), every other byte of the bag stays as it was. Writes OUT.mcap '
-                  'and OUT.labels.json (the flight\'s labels, or its covered tiles as safe, '
-                  'with the tiles under the inserted obstacles unsafe).\n\n'
-                  'Examples:\n\n  landing-zone insert-obstacles site.mcap --out hybrid.mcap '
-                  '--count 6\n\n'
-                  '  landing-zone insert-obstacles flight.bag --out h.mcap --region -5 -5 5 5 '
-                  '--kinds rock,tire --group train --seed 2\n\n'
-                  '  landing-zone insert-obstacles site.mcap --out f.mcap --families all '
-                  '--count 17\n\n'
-                  '  landing-zone insert-obstacles site.mcap --out h.mcap --labels '
-                  'site.labels.json --points-topic /points --pose-topic /sensor_pose')
-def insert_obstacles(
-    bag: Annotated[Path, typer.Argument(
-        help='ROS 2 bag (.mcap, .db3 or directory) or ROS 1 .bag with the clouds and poses.')],
-    out: Annotated[Path, typer.Option(help='Output bag (.mcap); labels go beside it.')],
-    count: Annotated[int, typer.Option(help='Obstacles to insert.')] = 6,
-    kinds: Annotated[Optional[str], typer.Option(
-        help='Obstacle kinds of the library, comma separated (rock, tire, cinder_block, '
-             'box), cycled [default: all four, unless --families is given].')] = None,
-    families: Annotated[Optional[str], typer.Option(
-        help='Obstacle families, comma separated (e.g. log,bucket,coil; all, train, test), '
-             'cycled after the kinds: random instances of --group.')] = None,
-    group: Annotated[str, typer.Option(
-        help='train or test: the obstacle models of that dataset split.')] = 'test',
-    region: Annotated[Optional[tuple[float, float, float, float]], typer.Option(
-        help='X0 Y0 X1 Y1 where obstacles may stand; default the labels\' safe tiles.')]
-    = None,
-    labels: Annotated[Optional[Path], typer.Option(
-        help='SITE.labels.json of the flight; default BAG.labels.json beside the bag.')]
-    = None,
-    seed: Annotated[int, typer.Option(help='Seed of placement and range noise.')] = 0,
-    range_noise: Annotated[float, typer.Option(
-        help='Range noise (standard deviation) of the moved returns [m].')] = 0.025,
-    points_topic: Annotated[str, typer.Option(help=POINTS_HELP)] = '/lidar/points',
-    pose_topic: Annotated[str, typer.Option(help=POSE_HELP)] = '/lidar/pose',
-    frame_id: Annotated[str, typer.Option(help='The fixed frame of clouds and poses.')] = 'map',
-    overwrite: Annotated[bool, typer.Option(help='Replace existing outputs.')] = False,
-) -> None:
-    from landing_zone.tools.sim.insert import DEFAULT_KINDS, insert_obstacles as run_insert
-
-    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
-               else () if families else DEFAULT_KINDS)
-    r = run_insert(bag, out, count=count, seed=seed, kinds=kinds_t,
-                   families=tuple(f.strip() for f in (families or '').split(',') if f.strip()),
-                   group=group,
-                   region=region, labels=labels, points_topic=points_topic,
-                   pose_topic=pose_topic, frame_id=frame_id, range_sigma=range_noise,
-                   overwrite=overwrite)
-    names = ', '.join(f'{o.model.name} at ({o.x:.1f}, {o.y:.1f})' for o in r.obstacles)
-    print(f'inserted {len(r.obstacles)} obstacle(s): {names}')
-    print(f'{r.altered:,} of {r.returns:,} returns moved onto them, in {r.altered_clouds} of '
-          f'{r.clouds} clouds ({r.skipped_clouds} left as they were: no pose or other frame); '
-          f'{r.messages} messages in {r.seconds:.1f} s')
-    print(f'wrote {r.bag}, {r.labels}')

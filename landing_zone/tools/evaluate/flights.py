@@ -270,7 +270,7 @@ def score_flight(task: dict[str, Any]) -> dict[str, Any]:
     center = task.get('center')
     if center is None:  # a task made before the centre was part of it
         center = list(labels_task_center(labels, None))
-    res = replay(task['bag'], None, None, None, points_topic=task['points_topic'],
+    res = replay(task['bag'], None, None, points_topic=task['points_topic'],
                  pose_topic=task['pose_topic'], model=task['model'], progress=False,
                  center=center)
     a = res.assessment

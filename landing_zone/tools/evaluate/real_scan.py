@@ -360,7 +360,7 @@ def flight_view(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | 
     from msg_adapters.pose import pose_stamped_to_arrays
 
     labels = read_labels(labels_path_for(bag))
-    res = replay(bag, None, None, None, points_topic=points_topic, pose_topic=pose_topic,
+    res = replay(bag, None, None, points_topic=points_topic, pose_topic=pose_topic,
                  model=model, progress=False, center=labels_center(labels))
     a = res.assessment
     ts = a.tile_size

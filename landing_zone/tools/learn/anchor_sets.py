@@ -6,7 +6,7 @@ sources' validation scenes show it only shapes the fine-tuning trains on; the le
 vegetation teaches shows on shapes it does not (a net that learns that tall sparse grass is safe
 grows more lenient on see-through structure). An anchor set is such shapes, held out of the
 fine-tuning: each dataset given to ``train`` as ``anchor_data`` (the command line's
-``--guard-data``) is a group of its own.
+``--anchor-data``) is a group of its own.
 """
 from __future__ import annotations
 
@@ -60,7 +60,7 @@ def check_held_out(anchor_data: Any, data: Any) -> None:
     anchor_paths = {str(Path(g).resolve()) for g in sets if isinstance(g, (str, os.PathLike))}
     both = sorted(anchor_paths & set(map(str, _paths(data))))
     if both:
-        raise ConfigError(f'{both[0]} is both training data and anchor data: a anchor set must '
+        raise ConfigError(f'{both[0]} is both training data and anchor data: an anchor set must '
                           'hold scenes the fine-tuning never sees')
 
 
