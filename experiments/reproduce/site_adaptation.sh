@@ -4,9 +4,9 @@
 # user's recordings) -> a hybrid set (obstacles inserted by ray alteration) -> fine-tuning with
 # some synth3 rehearsed (every train family of obstacles, vegetation, terrain and sensor, and
 # the frames and wire mesh the shipped model was tuned on; by default under the leniency
-# penalty and with the initial model's calibration kept, guarded) and its offset also guarded
+# penalty and with the initial model's calibration kept, anchored) and its offset also anchored
 # on obstacle scenes the fine-tuning never sees (other frames and wire mesh,
-# WORKDIR/guard_thin)
+# WORKDIR/anchor_thin)
 # -> the initial and the adapted model compared on:
 #   - the held-out vegetation: false alarms (safe tiles given P(safe) < 0.5) on the hybrid test
 #     split (flight 12) and on a further flight with obstacles neither saw (flight 13);
@@ -21,8 +21,8 @@
 # TEST_DATA (default data/synth3_test: `landing-zone simulate --dataset synth3 --split test --out
 # data/synth3_test`), NAME (of the adapted model, default site), FLIGHT_ARGS (more options for
 # simulate-flight, e.g. "--scan-pattern rosette"), TRAIN_ARGS (more options for train, e.g.
-# "--leniency-penalty 0 --calibration refit" for plain fine-tuning, with GUARD_ARGS=), GUARD_ARGS
-# (default --anchor-data WORKDIR/guard_thin; empty: the guard holds on the training sources'
+# "--leniency-penalty 0 --calibration refit" for plain fine-tuning, with ANCHOR_ARGS=), ANCHOR_ARGS
+# (default --anchor-data WORKDIR/anchor_thin; empty: the offset holds on the training sources'
 # validation obstacles only). Flights and data sets already in WORKDIR are reused; an adapted model
 # already there is kept.
 set -euo pipefail
@@ -45,19 +45,19 @@ done
 "$lz" simulate --dataset synth3 --split train --scenes 1200 --out "$work/synth3_some" \
     --seed 0 --quiet
 # rehearsal of the thin open structure the shipped model was fine-tuned on (other instances
-# than the guard set's)
+# than the anchor set's)
 "$lz" simulate --dataset synth3 --families frame,mesh --split train --scenes 600 \
     --out "$work/thin_some" --seed 2 --quiet
-# the guard set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
+# the anchor set: thin open structure (frames, wire mesh), in no training, rehearsal or test set
 "$lz" simulate --dataset synth3 --families frame,mesh --split train --scenes 600 \
-    --out "$work/guard_thin" --seed 0 --quiet
-guard_args=${GUARD_ARGS---anchor-data $work/guard_thin}
-# shellcheck disable=SC2086  # TRAIN_ARGS and guard_args are lists of options
+    --out "$work/anchor_thin" --seed 0 --quiet
+anchor_args=${ANCHOR_ARGS---anchor-data $work/anchor_thin}
+# shellcheck disable=SC2086  # TRAIN_ARGS and anchor_args are lists of options
 [ -f "$adapted" ] || \
 "$lz" train --init "$shipped" --data "$work/hybrid" --data "$work/synth3_some" \
     --data "$work/thin_some" --out "$adapted" --lr 0.001 --epochs 4 --augment-copies 6 \
     --cache-voxels 3 --workers 2 \
-    $guard_args ${TRAIN_ARGS:-} 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|train:)'
+    $anchor_args ${TRAIN_ARGS:-} 2>&1 | tr '\r' '\n' | grep -E '^(epoch [0-9]+:|wrote|train:)'
 "$lz" evaluate --data "$work/hybrid" --model "$shipped" --model "$adapted" \
     --json "$work/hybrid_$name.json"
 if [ -d "$test_data" ]; then

@@ -8,5 +8,5 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_flake8():
     out = subprocess.run([sys.executable, '-m', 'flake8', 'landing_zone', 'msg_adapters', 'test',
-                          'scripts'], cwd=ROOT, capture_output=True, text=True, timeout=300)
+                          'launch'], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, f'flake8 found problems:\n{out.stdout}{out.stderr}'
