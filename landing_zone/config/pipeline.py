@@ -107,9 +107,9 @@ class SiteConfig:
     footprint_radius: float = param(1.5, "Radius of the vehicle's circular footprint", 'm',
                                     (0.0, 50.0), open_lo=True)
     top_k: int = param(5, 'Landing-site candidates published, best first', '', (0, 100))
-    # 0.9, the level planners are told to act at (docs/LANDING_SITES.md, "A site's P(safe)"): fewer sites
-    # over an obstacle than at 0.8, for fewer clear ones; a planner that wants more sites
-    # lowers it knowingly
+    # 0.9, the level planners are told to act at (docs/LANDING_SITES.md, "A site's P(safe)"):
+    # fewer sites over an obstacle than at 0.8, for fewer clear ones; a planner that wants more
+    # sites lowers it knowingly
     min_p_safe: float = param(
         0.9, 'Candidates below this P(all tiles under the footprint safe) are left out', '',
         (0.0, 1.0))
