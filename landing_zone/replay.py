@@ -22,7 +22,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,8 +32,10 @@ import numpy as np
 from landing_zone.errors import BagError, ConfigError
 
 if TYPE_CHECKING:
-    from landing_zone.assessor import Assessment
+    from landing_zone.assessor import Assessment, Assessor
     from landing_zone.config import AssessorConfig, StreamConfig
+    from landing_zone.io.bags import BagMessage
+    from landing_zone.io.survey import Survey
     from landing_zone.runtime.stream import Stream
 
 __all__ = ['ReplayResult', 'replay', 'output_topics', 'NODE_NAME', 'require_inputs',
@@ -176,66 +178,109 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         ModelError: the model is missing or invalid.
         ConfigError: a bad configuration or center.
     """
-    from tqdm import tqdm
+    # all imported before the clock starts, so that no timing counts the importing
+    from tqdm import tqdm  # noqa: F401 (for _messages)
 
     from landing_zone.assessor import Assessor
     from landing_zone.runtime.ingest import warm_up
-    from landing_zone.io.bags import BagWriter, read_messages
+    from landing_zone.io.bags import BagWriter, read_messages  # noqa: F401 (for _messages)
     from landing_zone.io.survey import is_survey, read_survey
     from landing_zone.runtime.stream import Stream
 
     t_start = time.perf_counter()
     bag = Path(bag)
+    # the input: a survey file read whole, or a bag checked for the topics
     survey = None
     if is_survey(bag):
         survey = read_survey(bag, trajectory, log=log)
     else:
         require_inputs(bag, points_topic, pose_topic)
+    # the stream's frames and the region's centre, checked (a survey's made local)
     stream_config = _with_frames(stream_config, cloud_frame, sensor_offset)
+    center = _local_center(center, survey)
+    # the node's pipeline, every TOP_VIEW_STRIDE-th return kept for the top view
+    assessor = Assessor(config, center=center, model=model)
+    stream = Stream(assessor, stream_config)
+    kept = _keep_returns(stream)
+    # the set-up and the loop: the messages through the stream, each pass written out
+    writer = BagWriter(out, overwrite=True) if out is not None else None
+    times = _run(bag, survey, writer, assessor, stream, points_topic=points_topic,
+                 pose_topic=pose_topic, progress=progress, overlap=overlap,
+                 warm_up=warm_up if warm else None, t_start=t_start)
+    # the result: the final state, the counters, the timings and the top view
+    res = _result(assessor, stream, times, kept, survey, t_start)
+    # the report, and the wall time of the whole replay
+    _report(res, report, assessor, t_start)
+    return res
+
+
+def _local_center(center: Sequence[float] | None, survey: Survey | None
+                  ) -> Sequence[float] | None:
+    """``center`` checked; for a survey, moved from the file's CRS and units into its local
+    metric frame (where its clouds and poses are).
+
+    Raises:
+        ConfigError: ``center`` is not two finite numbers.
+    """
     if center is not None and (len(center) != 2 or not all(math.isfinite(c) for c in center)):
         raise ConfigError(f'center must be two finite numbers, got {center!r}')
     if survey is not None and center is not None:
         # the file's CRS and units -> the local metric frame
         center = tuple(float(v) for v in (np.asarray(center, np.float64) - survey.origin[:2])
                        * survey.metres_per_unit)
-    assessor = Assessor(config, center=center, model=model)
-    stream = Stream(assessor, stream_config)
+    return center
+
+
+def _keep_returns(stream: Stream) -> list[np.ndarray]:
+    """A list the stream fills, as it integrates each cloud, with every TOP_VIEW_STRIDE-th of
+    its returns (float32), for the result's top view."""
     kept: list[np.ndarray] = []
 
     def keep(_: int, xyz: np.ndarray, __: np.ndarray) -> None:
         kept.append(np.asarray(xyz[::TOP_VIEW_STRIDE], np.float32))
 
     stream.on_integrate = keep
-    writer = BagWriter(out, overwrite=True) if out is not None else None
-    last_ns = 0
-    t_ingest = 0.0
+    return kept
+
+
+@dataclass
+class _Times:
+    """What the set-up and the loop of a replay took (seconds) and how many passes ran."""
+
+    setup: float  # from the start to the loop: checks, model, map, warm-up
+    loop: float  # wall time of the loop over the messages, the last pass included
+    cpu: float  # CPU time of the whole process during the loop
+    ingest: float  # decoding and integrating clouds and poses
+    waited: float  # what the loop waited for passes to finish
+    write: float  # building and writing the output messages
+    passes: int  # assessment passes written
+
+
+def _run(bag: Path, survey: Survey | None, writer: Any, assessor: Assessor, stream: Stream, *,
+         points_topic: str, pose_topic: str, progress: bool, overlap: bool,
+         warm_up: Callable[..., Any] | None, t_start: float) -> _Times:
+    """The set-up's end and the loop: the messages through the stream in log-time order, a
+    pass begun whenever one is due and its outputs written into ``writer`` (None: none).
+
+    The warm-up (None: none) belongs to the set-up, as on the node. A last pass takes in what
+    no pass has (or the whole bag, had none been due). The output bag is closed when all went
+    well, aborted with the pending pass on any error; the assessor is closed either way, its
+    results still readable.
+    """
     if writer is not None:
         writer.open()
     passes = _Passes(stream, overlap)
     try:
         outputs = _Outputs(writer)
-        if warm:
+        if warm_up is not None:
             # as the node does before it listens: loading and compiling the kernels, torch's
             # first pass and the first messages built fall in the set-up, not in the loop
             warm_up(assessor, build=lambda a: outputs.messages(a, {}, 0))
         t_loop = time.perf_counter()
         cpu_loop = time.process_time()
         setup = t_loop - t_start
-        source = (survey.messages(points_topic, pose_topic, assessor.config.frame_id)
-                  if survey is not None else read_messages(bag, [points_topic, pose_topic]))
-        bar = tqdm(source, unit=' msg',
-                   desc=f'replay {bag.name}', disable=None if progress else True,
-                   mininterval=0.5, leave=False)
-        for m in bar:
-            last_ns = m.stamp_ns
-            t0 = time.perf_counter()
-            if m.topic == pose_topic:
-                stream.add_pose_msg(m.msg)
-            else:
-                stream.add_cloud_msg(m.msg)
-            t_ingest += time.perf_counter() - t0
-            if stream.due():
-                passes.begin(outputs)
+        messages = _messages(bag, survey, assessor, points_topic, pose_topic, progress)
+        t_ingest, last_ns = _feed(messages, stream, passes, outputs, pose_topic)
         t0 = time.perf_counter()
         stream.flush()
         t_ingest += time.perf_counter() - t0
@@ -251,8 +296,53 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
         raise
     finally:
         assessor.close()  # its threads; the results stay readable
-    loop = time.perf_counter() - t_loop
-    cpu = time.process_time() - cpu_loop
+    return _Times(setup=setup, loop=time.perf_counter() - t_loop,
+                  cpu=time.process_time() - cpu_loop, ingest=t_ingest, waited=passes.waited,
+                  write=outputs.seconds, passes=passes.count)
+
+
+def _messages(bag: Path, survey: Survey | None, assessor: Assessor, points_topic: str,
+              pose_topic: str, progress: bool) -> Iterable[BagMessage]:
+    """The clouds and poses of the bag or the survey in log-time order, behind a progress bar
+    (on a terminal, if ``progress``)."""
+    from tqdm import tqdm
+
+    from landing_zone.io.bags import read_messages
+
+    source = (survey.messages(points_topic, pose_topic, assessor.config.frame_id)
+              if survey is not None else read_messages(bag, [points_topic, pose_topic]))
+    bar: Iterable[BagMessage] = tqdm(source, unit=' msg', desc=f'replay {bag.name}',
+                                     disable=None if progress else True, mininterval=0.5,
+                                     leave=False)
+    return bar
+
+
+def _feed(messages: Iterable[BagMessage], stream: Stream, passes: _Passes, outputs: _Outputs,
+          pose_topic: str) -> tuple[float, int]:
+    """Give each message to the stream (a pose, else a cloud), beginning a pass whenever one
+    is due.
+
+    Returns:
+        (seconds spent ingesting, log time of the last message [ns], 0 without any).
+    """
+    last_ns = 0
+    t_ingest = 0.0
+    for m in messages:
+        last_ns = m.stamp_ns
+        t0 = time.perf_counter()
+        if m.topic == pose_topic:
+            stream.add_pose_msg(m.msg)
+        else:
+            stream.add_cloud_msg(m.msg)
+        t_ingest += time.perf_counter() - t0
+        if stream.due():
+            passes.begin(outputs)
+    return t_ingest, last_ns
+
+
+def _result(assessor: Assessor, stream: Stream, times: _Times, kept: list[np.ndarray],
+            survey: Survey | None, t_start: float) -> ReplayResult:
+    """The replay's result, its ``seconds`` and report timing still to be set."""
     result = assessor.last
     assert result is not None
     first_ns, last_cloud_ns = stream.stamp_span
@@ -261,32 +351,43 @@ def replay(bag: str | os.PathLike[str], out: str | os.PathLike[str] | None = Non
     bag_seconds = (last_cloud_ns - first_ns) / 1e9 if first_ns is not None else 0.0
     stats['bag_seconds'] = round(bag_seconds, 3)
     assess_s = stream.assess_seconds_total
-    timings = {'setup': setup,
-               'read': max(loop - t_ingest - passes.waited - outputs.seconds, 0.0),
-               'ingest': t_ingest, 'assess': assess_s, 'assess_wait': passes.waited,
-               'write': outputs.seconds, 'loop': loop, 'cpu': cpu}
+    timings = {'setup': times.setup,
+               'read': max(times.loop - times.ingest - times.waited - times.write, 0.0),
+               'ingest': times.ingest, 'assess': assess_s, 'assess_wait': times.waited,
+               'write': times.write, 'loop': times.loop, 'cpu': times.cpu}
     top = np.concatenate(kept) if kept else np.zeros((0, 3), np.float32)
     if len(top) > TOP_VIEW_MAX:
         top = top[::int(math.ceil(len(top) / TOP_VIEW_MAX))]
-    res = ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
-                       seconds=0.0, assessments=passes.count, top_view=top, timings=timings,
-                       survey=survey.describe() if survey is not None else None,
-                       ood_reference=str(assessor.ood_path) if assessor.ood_path else None)
+    return ReplayResult(assessment=result, stats=stats, bag_seconds=bag_seconds,
+                        seconds=0.0, assessments=times.passes, top_view=top, timings=timings,
+                        survey=survey.describe() if survey is not None else None,
+                        ood_reference=str(assessor.ood_path) if assessor.ood_path else None)
+
+
+def _report(res: ReplayResult, report: str | os.PathLike[str] | None, assessor: Assessor,
+            t_start: float) -> None:
+    """Write the report to ``report`` (None: none); set the time that took and that of the
+    whole replay (begun at ``t_start``, time.perf_counter()) in ``res``."""
     t_report = time.perf_counter()
     if report is not None:
-        doc = result.to_report(stats)
-        doc['model'] = str(assessor.model_path) if assessor.model_path else None
-        # without a reference the OOD signal is off: say so (null)
-        doc['ood_reference'] = res.ood_reference
-        doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
-                         for k, v in assessor.config.to_flat().items()}
-        doc['config']['region_center'] = list(assessor.config.center or [])
-        if res.survey is not None:
-            doc['survey'] = res.survey
-        _write_json(Path(report), doc)
+        _write_report(Path(report), res, assessor)
     res.timings['report'] = time.perf_counter() - t_report
     res.seconds = time.perf_counter() - t_start
-    return res
+
+
+def _write_report(path: Path, res: ReplayResult, assessor: Assessor) -> None:
+    """Write REPORT.json: the final state and counters, the model, the OOD reference (null:
+    the signal was off), the configuration and, for a survey, its description."""
+    doc = res.assessment.to_report(res.stats)
+    doc['model'] = str(assessor.model_path) if assessor.model_path else None
+    # without a reference the OOD signal is off: say so (null)
+    doc['ood_reference'] = res.ood_reference
+    doc['config'] = {k: (list(v) if isinstance(v, tuple) else v)
+                     for k, v in assessor.config.to_flat().items()}
+    doc['config']['region_center'] = list(assessor.config.center or [])
+    if res.survey is not None:
+        doc['survey'] = res.survey
+    _write_json(path, doc)
 
 
 POSE_TYPES = ('geometry_msgs/msg/PoseStamped', 'nav_msgs/msg/Odometry')

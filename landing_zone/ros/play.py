@@ -122,25 +122,14 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
         ConfigError: a rate that is not positive, an unknown reliability.
     """
     import rclpy
-    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from tqdm import tqdm
 
-    from landing_zone.io.bags import RawBag, bag_topics
-    from msg_adapters import MessageTypes
-
+    # the rate, the reliability and the topics, checked
     if not rate > 0:
         raise ConfigError(f'rate must be positive, got {rate}')
-    policies = {'reliable': ReliabilityPolicy.RELIABLE,
-                'best_effort': ReliabilityPolicy.BEST_EFFORT}
-    if reliability not in policies:
-        raise ConfigError(f'reliability must be reliable or best_effort, got {reliability!r}')
-    available = bag_topics(Path(bag))
-    wanted = sorted(available) if topics is None else list(topics)
-    missing = [t for t in wanted if t not in available]
-    if missing:
-        raise BagError(f'{bag} lacks topic(s) {", ".join(missing)} (it has '
-                       f'{", ".join(sorted(available)) or "no topics"})')
+    policy = _reliability_policy(reliability)
+    available, wanted = _wanted_topics(bag, topics)
     remap = remap or {}
+    # a node, in a context of its own unless one is given
     own = context is None
     if own:
         context = rclpy.Context()
@@ -148,67 +137,155 @@ def play(bag: str | os.PathLike[str], rate: float = 1.0, topics: Iterable[str] |
     node = rclpy.create_node('landing_zone_player', context=context)
     stats = PlayStats()
     try:
-        types = MessageTypes.rclpy()
-        qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST,
-                         reliability=policies[reliability])
-        pubs = {}
-        for topic in wanted:
-            cls = types.get(available[topic])
-            pubs[topic] = node.create_publisher(cls, remap.get(topic, topic), qos)
+        # a publisher per topic; the wait until they have subscribers
+        pubs = _publishers(node, wanted, available, remap, qos_depth, policy)
         if wait_subscribers > 0:
             stats.subscribed = wait_for_subscribers(pubs.values(), wait_subscribers)
-        start_wall = None
-        first_ns = last_ns = 0
-        span_ns = 0
-        end = None
-        with RawBag(bag) as src:
-            stamped = {t: _starts_with_header(src, t) for t in wanted}
-            passes = itertools.count() if loops == 0 else range(loops)
-            for k in passes:
-                stats.loops += 1
-                bar = tqdm(src.messages(wanted), unit=' msg', desc=f'play {Path(bag).name}',
-                           disable=None if progress else True, mininterval=0.5, leave=False)
-                shift = k * span_ns
-                done = False
-                for m in bar:
-                    if start_wall is None:
-                        start_wall, first_ns = time.monotonic(), m.stamp_ns
-                        if duration is not None:
-                            end = start_wall + duration
-                    t_ns = m.stamp_ns + shift
-                    due = start_wall + (t_ns - first_ns) / 1e9 / rate
-                    delay = due - time.monotonic()
-                    if end is not None and due > end:
-                        done = True
-                        break
-                    if delay > 0:
-                        time.sleep(delay)
-                    else:
-                        stats.late = max(stats.late, -delay)
-                    data, stamp = bytes(m.data), -1
-                    if stamped[m.topic]:
-                        data, stamp = _restamp(data, shift if restamp else 0)
-                    pubs[m.topic].publish(data)
-                    if on_publish is not None:
-                        on_publish(m.topic, stamp, time.monotonic())
-                    stats.messages += 1
-                    stats.by_topic[m.topic] = stats.by_topic.get(m.topic, 0) + 1
-                    last_ns = t_ns
-                if k == 0:
-                    # a pass after this one starts one mean message interval after its end
-                    n = max(stats.messages - 1, 1)
-                    span_ns = (last_ns - first_ns) + (last_ns - first_ns) // n
-                if done or span_ns <= 0:
-                    break
-        if start_wall is not None:
-            stats.seconds = time.monotonic() - start_wall
-            stats.bag_seconds = (last_ns - first_ns) / 1e9
+        # the passes over the bag, each message at its due time
+        player = _Player(pubs, stats, rate, restamp, duration, on_publish)
+        player.play(bag, wanted, loops, progress)
+        # time for reliable transports to deliver the last messages
         time.sleep(max(linger, 0.0))
     finally:
         node.destroy_node()
         if own:
             rclpy.try_shutdown(context=context)
     return stats
+
+
+def _reliability_policy(reliability: str) -> Any:
+    """The rclpy ReliabilityPolicy named ``reliability``.
+
+    Raises:
+        ConfigError: neither 'reliable' nor 'best_effort'.
+    """
+    from rclpy.qos import ReliabilityPolicy
+
+    policies = {'reliable': ReliabilityPolicy.RELIABLE,
+                'best_effort': ReliabilityPolicy.BEST_EFFORT}
+    if reliability not in policies:
+        raise ConfigError(f'reliability must be reliable or best_effort, got {reliability!r}')
+    return policies[reliability]
+
+
+def _wanted_topics(bag: str | os.PathLike[str], topics: Iterable[str] | None
+                   ) -> tuple[dict[str, str], list[str]]:
+    """(the bag's topic -> type, the topics to play: ``topics``, default all, sorted).
+
+    Raises:
+        BagError: the bag is missing or unreadable, or lacks one of ``topics``.
+    """
+    from landing_zone.io.bags import bag_topics
+
+    available = bag_topics(Path(bag))
+    wanted = sorted(available) if topics is None else list(topics)
+    missing = [t for t in wanted if t not in available]
+    if missing:
+        raise BagError(f'{bag} lacks topic(s) {", ".join(missing)} (it has '
+                       f'{", ".join(sorted(available)) or "no topics"})')
+    return available, wanted
+
+
+def _publishers(node: Any, wanted: list[str], available: dict[str, str],
+                remap: dict[str, str], qos_depth: int, policy: Any) -> dict[str, Any]:
+    """Bag topic -> a publisher of its type on the remapped topic (volatile, keep last
+    ``qos_depth``, reliability ``policy``)."""
+    from rclpy.qos import HistoryPolicy, QoSProfile
+
+    from msg_adapters import MessageTypes
+
+    types = MessageTypes.rclpy()
+    qos = QoSProfile(depth=qos_depth, history=HistoryPolicy.KEEP_LAST, reliability=policy)
+    pubs = {}
+    for topic in wanted:
+        cls = types.get(available[topic])
+        pubs[topic] = node.create_publisher(cls, remap.get(topic, topic), qos)
+    return pubs
+
+
+class _Player:
+    """Publishes the passes over a bag, each message at
+    ``start + (log_time - first_log_time) / rate``, counting them into ``stats``.
+
+    The clock starts at the first message. A pass after the first is ``k`` bag spans later in
+    log time (its stamps too, with ``restamp``); playing stops when the passes end or the
+    next message is due after ``duration``.
+    """
+
+    def __init__(self, pubs: dict[str, Any], stats: PlayStats, rate: float, restamp: bool,
+                 duration: float | None,
+                 on_publish: Callable[[str, int, float], None] | None) -> None:
+        self.pubs = pubs
+        self.stats = stats
+        self.rate = rate
+        self.restamp = restamp
+        self.duration = duration
+        self.on_publish = on_publish
+        self.start_wall: float | None = None
+        self.end: float | None = None  # when the duration ends (monotonic) [s]
+        self.first_ns = self.last_ns = 0
+        self.bar: Any = None  # the progress bar of the pass playing (or last played)
+
+    def play(self, bag: str | os.PathLike[str], wanted: list[str], loops: int,
+             progress: bool) -> None:
+        """Play ``loops`` passes over the topics ``wanted`` (0: until the duration ends, or
+        for ever), then set the stats' spans."""
+        from tqdm import tqdm
+
+        from landing_zone.io.bags import RawBag
+
+        span_ns = 0
+        with RawBag(bag) as src:
+            stamped = {t: _starts_with_header(src, t) for t in wanted}
+            passes = itertools.count() if loops == 0 else range(loops)
+            for k in passes:
+                self.stats.loops += 1
+                self.bar = tqdm(src.messages(wanted), unit=' msg', desc=f'play {Path(bag).name}',
+                                disable=None if progress else True, mininterval=0.5,
+                                leave=False)
+                done = self._play_pass(self.bar, k * span_ns, stamped)
+                if k == 0:
+                    # a pass after this one starts one mean message interval after its end
+                    n = max(self.stats.messages - 1, 1)
+                    span_ns = (self.last_ns - self.first_ns) + (self.last_ns - self.first_ns) // n
+                if done or span_ns <= 0:
+                    break
+        if self.start_wall is not None:
+            self.stats.seconds = time.monotonic() - self.start_wall
+            self.stats.bag_seconds = (self.last_ns - self.first_ns) / 1e9
+
+    def _play_pass(self, messages: Iterable[Any], shift: int, stamped: dict[str, bool]) -> bool:
+        """Publish one pass's messages, ``shift`` [ns] later in log time than recorded, each
+        at its due time; True: the duration ended before its end."""
+        for m in messages:
+            if self.start_wall is None:
+                self.start_wall, self.first_ns = time.monotonic(), m.stamp_ns
+                if self.duration is not None:
+                    self.end = self.start_wall + self.duration
+            t_ns = m.stamp_ns + shift
+            due = self.start_wall + (t_ns - self.first_ns) / 1e9 / self.rate
+            delay = due - time.monotonic()
+            if self.end is not None and due > self.end:
+                return True
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                self.stats.late = max(self.stats.late, -delay)
+            self._publish(m, shift if self.restamp else 0, stamped[m.topic])
+            self.last_ns = t_ns
+        return False
+
+    def _publish(self, m: Any, shift_ns: int, stamped: bool) -> None:
+        """Publish message ``m``'s CDR bytes, its header stamp (if it has one) moved by
+        ``shift_ns``, and count it."""
+        data, stamp = bytes(m.data), -1
+        if stamped:
+            data, stamp = _restamp(data, shift_ns)
+        self.pubs[m.topic].publish(data)
+        if self.on_publish is not None:
+            self.on_publish(m.topic, stamp, time.monotonic())
+        self.stats.messages += 1
+        self.stats.by_topic[m.topic] = self.stats.by_topic.get(m.topic, 0) + 1
 
 
 def _starts_with_header(src: Any, topic: str) -> bool:

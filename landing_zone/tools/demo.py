@@ -33,7 +33,9 @@ if TYPE_CHECKING:
     from rich.text import Text
 
     from landing_zone.assessor import Assessment
+    from landing_zone.io.labels import LabelScores
     from landing_zone.replay import ReplayResult
+    from landing_zone.tools.sim.flight import FlightConfig, FlightResult
 
 __all__ = ['DemoResult', 'tile_map', 'run_demo', 'replay_command', 'DEMO_BANK', 'BANDS']
 
@@ -181,34 +183,24 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
     from landing_zone.replay import replay
     from landing_zone.io.labels import read_labels, score_tiles
     from landing_zone.tools.map_png import render_png
-    from landing_zone.tools.sim.flight import FlightConfig, simulate_flight
+    from landing_zone.tools.sim.flight import simulate_flight
 
     console = console or Console(highlight=False)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     model_path = Path(model) if model is not None else default_model_path()  # fail early
     seconds: dict[str, float] = {}
-
+    # 1. the site's flight and its ground truth, simulated; the site's centre
     t0 = time.perf_counter()
     with console.status('simulating the flight ...'):
-        cfg = FlightConfig(seed=seed, bank=bank)
-        if size is not None:
-            cfg = replace(cfg, size=size)
-        if families:
-            # The library's kinds and then the families, one obstacle each of the families
-            # more than the default's six.
-            cfg = replace(cfg, families=tuple(families),
-                          obstacles=cfg.obstacles + len(families))
-        flight = simulate_flight(cfg, out / 'site.mcap', overwrite=True)
+        flight = simulate_flight(_flight_config(seed, bank, size, families), out / 'site.mcap',
+                                 overwrite=True)
     seconds['simulate'] = time.perf_counter() - t0
     labels = read_labels(flight.labels)
     lo, hi = np.asarray(labels['site']['lo']), np.asarray(labels['site']['hi'])
     cx, cy = (float(c) for c in (lo + hi) / 2)
-    console.print(f'simulated {flight.clouds} clouds, {flight.points:,} returns over '
-                  f'{flight.duration:.1f} s of flight ({flight.passes} passes at '
-                  f'{flight.speed:.1f} m/s, {flight.density:.0f} returns/m^2); '
-                  f'{flight.unsafe_tiles} of {flight.tiles} tiles unsafe -> {flight.bag}')
-
+    _print_flight(console, flight)
+    # 2. the flight replayed with the map fixed on the site, the map drawn, the tiles scored
     t0 = time.perf_counter()
     res = replay(flight.bag, out / 'assessed.mcap', out / 'report.json', model=model_path,
                  center=(cx, cy))
@@ -219,9 +211,46 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                      'site(s)')
     seconds['replay'] = time.perf_counter() - t0
     scores = score_tiles(a.centers, a.p_safe, a.tile_size, labels)
-    auc, fraction, n = scores.auc, scores.judged_fraction, scores.judged
     command = replay_command(flight.bag, (cx, cy), out, model=model, labels=flight.labels)
+    # 3. the tile map and the figures, then why the map is fixed and how replay fixes it
+    _print_assessment(console, res, labels, scores, model_path, (cx, cy))
+    _print_sites(console, a)
+    _print_outputs(console, out, command)
+    return DemoResult(out, res, scores.auc, scores.judged_fraction, scores.judged, seconds,
+                      (cx, cy), command)
 
+
+def _flight_config(seed: int, bank: float, size: float | None, families: tuple[str, ...]
+                   ) -> FlightConfig:
+    """The demo site's flight: the simulator's default site with ``seed``, ``bank``, ``size``
+    (None: the default's) and, for each of ``families``, one obstacle more."""
+    from landing_zone.tools.sim.flight import FlightConfig
+
+    cfg = FlightConfig(seed=seed, bank=bank)
+    if size is not None:
+        cfg = replace(cfg, size=size)
+    if families:
+        # The library's kinds and then the families, one obstacle each of the families
+        # more than the default's six.
+        cfg = replace(cfg, families=tuple(families),
+                      obstacles=cfg.obstacles + len(families))
+    return cfg
+
+
+def _print_flight(console: Console, flight: FlightResult) -> None:
+    """One line on what the simulation wrote."""
+    console.print(f'simulated {flight.clouds} clouds, {flight.points:,} returns over '
+                  f'{flight.duration:.1f} s of flight ({flight.passes} passes at '
+                  f'{flight.speed:.1f} m/s, {flight.density:.0f} returns/m^2); '
+                  f'{flight.unsafe_tiles} of {flight.tiles} tiles unsafe -> {flight.bag}')
+
+
+def _print_assessment(console: Console, res: ReplayResult, labels: dict[str, Any],
+                      scores: LabelScores, model_path: Path, center: tuple[float, float]
+                      ) -> None:
+    """The tile map, how fast the replay ran, and how well the judged tiles score."""
+    a = res.assessment
+    cx, cy = center
     nx, ny = a.shape
     console.print(f'\nP(safe) per {a.tile_size:g} m tile ({a.frame_id} frame), model '
                   f'{model_path.name},\nover a region fixed on the site: '
@@ -232,9 +261,15 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                   f'({res.timings["loop"]:.1f} s for {res.bag_seconds:.1f} s of flight, '
                   f'{res.assessments} assessments, {res.timings["assess"]:.1f} s of them '
                   'assessing)')
+    auc, fraction, n = scores.auc, scores.judged_fraction, scores.judged
     console.print(f'judged {n} of {len(labels["tiles"])} tiles ({100 * fraction:.0f} %); '
                   + (f'AUC of P(safe) against the labels over them: {auc:.3f}'
                      if auc is not None else 'AUC undefined (one class among the judged)'))
+
+
+def _print_sites(console: Console, a: Assessment) -> None:
+    """The best landing site (or that there is none), and why candidate footprints were left
+    out."""
     if a.sites:
         best = a.sites[0]
         console.print(f'best landing site: ({best.x:.1f}, {best.y:.1f}) with P(footprint '
@@ -251,6 +286,10 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                       + ', '.join(f'{why} {n}' for why, n in counts.items())
                       + f' of {a.candidates.reasons.size} (map.png hatches slope, step and '
                       'clearance)')
+
+
+def _print_outputs(console: Console, out: Path, command: str) -> None:
+    """The files written; why the demo fixes the map, and the replay command that does too."""
     console.print(f'wrote {out / "report.json"}, {out / "map.png"}, {out / "assessed.mcap"}')
     console.print('\nThe demo fixes the map on the site. The node, `landing-zone replay`, '
                   '`evaluate-flights` and `Assessor()` follow the sensor by default instead, '
@@ -258,4 +297,3 @@ def run_demo(out_dir: str | os.PathLike[str] = 'lz_demo', seed: int = 0,
                   'tiles and sites from replay (on the node: the parameter region_center):')
     # soft_wrap: the command stays on one line, to be copied whole
     console.print(f'  {command}', soft_wrap=True, markup=False)
-    return DemoResult(out, res, auc, fraction, n, seconds, (cx, cy), command)
