@@ -1,9 +1,10 @@
 """One assessment pass's judgement of the tiles it was given, stage by stage.
 
 From a copy of the map's counts around the tiles to judge: the ground planes, the tiles' cubes,
-the network's P(safe) (and its features' distance from the training tiles), the guard's cap and
-the distrust of an unfamiliar "safe", and the tiles seen only at grazing angles. Nothing here holds the map's lock or the tiles' state: the
-assessor copies the counts in, and stores what comes out.
+the network's P(safe) (and its features' distance from the training tiles), the guard's cap,
+the distrust of an unfamiliar "safe" and of a tile seen only at grazing angles. Nothing here
+holds the map's lock or the tiles' state: the assessor copies the counts in, and stores what
+comes out.
 """
 from __future__ import annotations
 
