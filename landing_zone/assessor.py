@@ -17,7 +17,10 @@ tiles in both. One :class:`Assessor` owns the scrolling density map, the tiler a
    where opaque structure stands above the tile's ground, whatever its shape; after it, a tile
    the network calls safe whose features are unlike every training tile's
    (:mod:`landing_zone.judging.ood`, when the model has a reference) becomes unknown, and every
-   tile's confidence is scaled by how near its features lie to the training tiles'.
+   tile's confidence is scaled by how near its features lie to the training tiles'. A tile
+   with fewer than ``tiles.min_returns`` returns from rays at least
+   ``tiles.min_ray_depression_deg`` below the horizontal is unknown too: seen only at grazing
+   angles (a ground vehicle's view), unlike every tile the network learnt from.
 4. **Confidence** in [0, 1] says how much the judgement rests on observation: the product of
    ``min(1, observed_fraction / 0.5)`` (a sensor above the ground sees at most the upper half of
    the tile's cube, the half above the ground voxel) and ``1 - exp(-returns / (100 per m^2 *
@@ -59,7 +62,7 @@ from landing_zone.judging.judgement import Judgement, judge_tiles
 from landing_zone.judging.loading import load_net, load_ood
 from landing_zone.judging.ground import slope_deg
 from landing_zone.judging.sites import GroundGrids, evaluate_candidates, find_sites
-from landing_zone.judging.tile_state import TileState
+from landing_zone.judging.tile_state import TileCounts, TileState
 from landing_zone.judging.tiles import CountBuffers, tile_voxels
 from landing_zone.mapping.density_map import DensityMap
 from landing_zone.mapping.rays import IntegrationStats
@@ -133,6 +136,7 @@ class _Pass:
     counts: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # hits, passes, box lo
     stamp: float | None
     t0: float
+    steep: np.ndarray | None = None  # (K,) returns from steep rays; None: rule off
 
 
 class Assessor:
@@ -207,6 +211,8 @@ class Assessor:
         self._window = Window(self.map, cfg.map, self.tile_vox, self.tile_size, self._n_tiles,
                               cfg.center)
         self._state = TileState(self._window.tile_origin(), self._n_tiles)
+        # per tile, the returns from steep rays (tiles.min_ray_depression_deg)
+        self._steep = TileCounts(self._window.tile_origin(), self._n_tiles, self.tile_size)
         self._last: Assessment | None = None
 
     # -- placement --------------------------------------------------------------------------
@@ -252,11 +258,33 @@ class Assessor:
             # a pass that runs meanwhile keeps the window it began with
             self._window.follow_cloud(pts, org)
             st = self.map.integrate(pts, org)
+            self._count_steep(pts, org)
             self.stats = self.stats + st
             self.clouds += 1
             if stamp is not None:
                 self._stamp = float(stamp)
         return st
+
+    def _count_steep(self, pts: np.ndarray, org: np.ndarray) -> None:
+        """Count into their tiles the returns whose ray from ``org`` drops at least
+        ``tiles.min_ray_depression_deg`` below the horizontal (the map's lock held)."""
+        deg = self.config.tiles.min_ray_depression_deg
+        if deg <= 0:
+            return
+        self._steep.move(self._window.tile_origin())
+        # dz^2 >= tan^2(A) (dx^2 + dy^2) with dz > 0: no trigonometry per return, in place, in
+        # the points' own dtype; NaN rows compare False, an infinite drop is no direction
+        ox, oy, oz = (float(v) for v in org)
+        dz = oz - pts[:, 2]
+        h = pts[:, 0] - ox
+        dy = pts[:, 1] - oy
+        h *= h
+        dy *= dy
+        h += dy
+        h *= math.tan(math.radians(deg)) ** 2
+        steep = (dz > 0) & (dz < math.inf)
+        steep &= np.multiply(dz, dz, out=dy) >= h
+        self._steep.add(pts, steep)
 
     def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copy of the counts the tiles' inputs read (as
@@ -296,6 +324,10 @@ class Assessor:
                 counts = self._read_counts(todo) if len(todo) else None
                 stamp = self._stamp
                 origin = self._window.tile_origin()
+                steep = None
+                if self.config.tiles.min_ray_depression_deg > 0:
+                    self._steep.move(origin)
+                    steep = self._steep.take(todo)
             with self._state_lock:
                 # tiles that left the window are forgotten; those that entered since the last
                 # pass are among the changed ones (scrolling marks them), judged afresh now
@@ -303,7 +335,7 @@ class Assessor:
         except BaseException:
             self._assess_lock.release()
             raise
-        return _Pass(todo, counts, stamp, t0)
+        return _Pass(todo, counts, stamp, t0, steep)
 
     def finish_assess(self, job: _Pass) -> Assessment:
         """Judge what :meth:`begin_assess` copied (the tiler's kernel and the network, outside
@@ -311,7 +343,7 @@ class Assessor:
         try:
             # judge the copied counts: ground planes, cubes, network, guard, OOD
             found = judge_tiles(job.counts, job.todo, self.config, self.tile_vox,
-                                self._predictor, self.ood)
+                                self._predictor, self.ood, job.steep)
             # how much each judgement rests on observation, and on familiar features
             confidence = self._confidence(found)
             with self._state_lock:
@@ -364,7 +396,7 @@ class Assessor:
             guard_hits=st.guard_hits.ravel().copy(), guard_height=st.guard_height.ravel().copy(),
             slope_deg=slope_deg(grad).ravel(), roughness=st.roughness.ravel().copy(),
             clearance=st.clearance.ravel().copy(), grad=grad.reshape(-1, 2).copy(),
-            candidates=cand, ood=st.ood.ravel().copy())
+            candidates=cand, ood=st.ood.ravel().copy(), grazing=st.grazing.ravel().copy())
 
     def export_state(self) -> dict[str, np.ndarray]:
         """Copies of the map's counts and the tiles' results, taken under the locks at one
@@ -373,6 +405,9 @@ class Assessor:
             out = {f'map.{k}': v for k, v in self.map.export_state().items()}
             self._state.move(self._window.tile_origin())
             out.update(self._state.export())
+            self._steep.move(self._window.tile_origin())
+            out['steep.returns'] = self._steep.counts.copy()
+            out['steep.deg'] = np.array([self.config.tiles.min_ray_depression_deg])
             out['placed_z'] = np.array([self._window.placed_z], np.uint8)
             out['stamp'] = np.array([np.nan if self._stamp is None else self._stamp])
         return out
@@ -396,12 +431,27 @@ class Assessor:
             else:
                 self.map.mark_tile_size(self.tile_vox)
             self._state = fresh
+            self._steep = self._restore_steep(state)
             placed = state.get('placed_z')
             self._window.placed_z = bool(placed[0]) if isinstance(placed, np.ndarray) and \
                 placed.size else True
             stamp = state.get('stamp')
             self._stamp = float(stamp[0]) if isinstance(stamp, np.ndarray) and stamp.size \
                 and np.isfinite(stamp[0]) else None
+
+    def _restore_steep(self, state: dict[str, np.ndarray]) -> TileCounts:
+        """The steep returns of :meth:`export_state`'s arrays on the window as imported. A
+        snapshot without them (or counted at another angle) does not say: each tile's return
+        count stands in, so a restart does not make the map unknown."""
+        out = TileCounts(self._window.tile_origin(), self._n_tiles, self.tile_size)
+        counts, deg = state.get('steep.returns'), state.get('steep.deg')
+        if not (isinstance(deg, np.ndarray) and deg.size and
+                deg[0] == self.config.tiles.min_ray_depression_deg):
+            counts = state.get('tiles.n_returns')
+        if isinstance(counts, np.ndarray) and counts.shape == out.shape and \
+                counts.dtype.kind in 'iu':
+            out.counts = counts.astype(np.int64)
+        return out
 
     def invalidate(self) -> None:
         """Judge every tile again at the next pass (after a change of the tiles' settings).

@@ -72,6 +72,13 @@ class TileConfig:
         0.25, 'Tiles with less of their cube observed are unknown', '', (0.0, 1.0))
     min_returns: int = param(20, 'Tiles with fewer returns in their column are unknown', '',
                              (0, 1_000_000))
+    # A ground vehicle's sensor sees the ground 6 to 20 degrees down, a helicopter's at least
+    # 25 (experiments/2026-12-06_real-scan): the network was trained on the helicopter's view
+    # and judges the grazing one wildly. Read-only: the counts are taken as clouds arrive.
+    min_ray_depression_deg: float = param(
+        20.0, 'Tiles with fewer than min_returns returns from rays at least this steep below '
+        'the horizontal are unknown (a grazing view); 0 turns it off', 'deg', (0.0, 90.0),
+        open_hi=True, read_only=True)
     # The shipped model was trained on cubes cut level (of level and sloped synth3 ground), yet
     # judges a 10-degree site as it judges the same site flat only with the cubes aligned (per-
     # tile AUC 0.999 tilted and flat, no obstacle tile passed; cut level 0.975 and 4 of 30:

@@ -56,6 +56,8 @@ class Assessment:
         ood: (T,) float32 the tile's feature distance over the OOD threshold (past 1: unlike
             the training data, :mod:`landing_zone.judging.ood`); NaN where not judged or
             without a reference.
+        grazing: (T,) bool unknown for too few returns from steep rays (seen only at grazing
+            angles, ``tiles.min_ray_depression_deg``); None: not kept.
     """
 
     frame_id: str
@@ -84,6 +86,7 @@ class Assessment:
     grad: np.ndarray | None = None
     candidates: Candidates | None = None
     ood: np.ndarray | None = None
+    grazing: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.index.shape[0])
@@ -108,6 +111,7 @@ class Assessment:
 
     def reasons(self) -> list[str | None]:
         """Per tile, why its P(safe) is lower than the network's (None: it is the network's)."""
+        from landing_zone.judging.judgement import REASON_GRAZING
         from landing_zone.judging.ood import REASON_OOD  # the OOD module imports torch
 
         if self.guard is None or self.guard_hits is None or self.guard_height is None:
@@ -115,11 +119,14 @@ class Assessment:
         n = len(self)
         ood = self.ood if self.ood is not None else np.full(n, np.nan, np.float32)
         p_net = self.p_net if self.p_net is not None else self.p_safe
+        grazing = self.grazing if self.grazing is not None else np.zeros(n, np.bool_)
         out: list[str | None] = []
-        for g, hits, h, p, q, r in zip(self.guard.tolist(), self.guard_hits.tolist(),
-                                       self.guard_height.tolist(), self.p_safe.tolist(),
-                                       p_net.tolist(), ood.tolist()):
-            if g:
+        for g, hits, h, p, q, r, side in zip(self.guard.tolist(), self.guard_hits.tolist(),
+                                             self.guard_height.tolist(), self.p_safe.tolist(),
+                                             p_net.tolist(), ood.tolist(), grazing.tolist()):
+            if side:  # unknown whatever the network and the guard said
+                out.append(REASON_GRAZING)
+            elif g:
                 out.append(f'{REASON_SOLID}: {hits} returns up to {h:.2f} m')
             elif math.isnan(p) and not math.isnan(q):
                 # judged by the network, made unknown after it: only the OOD signal does that
@@ -136,8 +143,8 @@ class Assessment:
         ``roughness`` and ``clearance`` beside ``slope_deg``, sites their ``step``,
         ``clearance`` and ground ``normal``, and ``rejected_sites`` lists every candidate
         footprint left out with its ``reasons`` (but those whose one reason is ``unknown``).
-        The reasons cover the guard's caps and the tiles the OOD signal made unknown
-        (``p_safe`` null).
+        The reasons cover the guard's caps and the tiles the OOD signal or a grazing view made
+        unknown (``p_safe`` null).
 
         Args:
             stats: the front end's counters (clouds, points, dropped_points, seconds, ...).

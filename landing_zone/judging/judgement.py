@@ -1,9 +1,10 @@
 """One assessment pass's judgement of the tiles it was given, stage by stage.
 
 From a copy of the map's counts around the tiles to judge: the ground planes, the tiles' cubes,
-the network's P(safe) (and its features' distance from the training tiles), the guard's cap and
-the distrust of an unfamiliar "safe". Nothing here holds the map's lock or the tiles' state: the
-assessor copies the counts in, and stores what comes out.
+the network's P(safe) (and its features' distance from the training tiles), the guard's cap,
+the distrust of an unfamiliar "safe" and of a tile seen only at grazing angles. Nothing here
+holds the map's lock or the tiles' state: the assessor copies the counts in, and stores what
+comes out.
 """
 from __future__ import annotations
 
@@ -21,7 +22,10 @@ if TYPE_CHECKING:
     from landing_zone.judging.inference import Predictor
     from landing_zone.judging.ood import FeatureReference
 
-__all__ = ['Judgement', 'judge_tiles']
+__all__ = ['Judgement', 'judge_tiles', 'REASON_GRAZING']
+
+# why a tile the tiler found observed enough is unknown all the same
+REASON_GRAZING = 'seen only at grazing angles'
 
 Counts = tuple[np.ndarray, np.ndarray, np.ndarray]  # hits, passes, the box's low corner
 
@@ -39,6 +43,8 @@ class Judgement:
         guard: the guard's findings (None: guard disabled or nothing judged).
         ood: (K,) float32 distance of the tile's features over the OOD threshold; NaN where not
             measured.
+        grazing: (K,) bool valid tiles made unknown for too few returns from steep rays
+            (``tiles.min_ray_depression_deg``).
     """
 
     batch: TileBatch | None
@@ -47,15 +53,19 @@ class Judgement:
     p_safe: np.ndarray
     guard: GuardResult | None
     ood: np.ndarray
+    grazing: np.ndarray
 
 
 def judge_tiles(counts: Counts | None, todo: np.ndarray, config: AssessorConfig, tile_vox: int,
-                predictor: Predictor, reference: FeatureReference | None) -> Judgement:
+                predictor: Predictor, reference: FeatureReference | None,
+                steep: np.ndarray | None = None) -> Judgement:
     """Judge the tiles ``todo`` ((K, 2) global indices) on ``counts``, the map's counts around
-    them (None when there are no tiles)."""
+    them (None when there are no tiles); ``steep``: (K,) each tile's returns from rays at least
+    ``tiles.min_ray_depression_deg`` down (None: not counted, the rule is not applied)."""
     if counts is None:
         empty = np.full(len(todo), np.nan, np.float32)
-        return Judgement(None, None, empty, empty.copy(), None, empty.copy())
+        return Judgement(None, None, empty, empty.copy(), None, empty.copy(),
+                         np.zeros(len(todo), np.bool_))
     # the ground planes first: the cubes may be aligned to them (tiles.align_to_ground)
     ground = fit_ground(*counts, config.map.voxel_size, todo, tile_vox,
                         config.tiles.occupied_density, config.landing_sites.clutter_height)
@@ -71,7 +81,13 @@ def judge_tiles(counts: Counts | None, todo: np.ndarray, config: AssessorConfig,
     # after the guard: a "safe" the network gives a tile unlike its training data is not
     # trusted (NaN ratios, tiles not judged or no reference, compare False)
     p = np.where((ood > 1.0) & (p >= 0.5), np.float32(np.nan), p).astype(np.float32)
-    return Judgement(batch, ground, p_net, p, guard, ood)
+    # a tile seen only from the side (a ground vehicle's view) is not the view the network
+    # was trained on: unknown, whatever it and the guard said
+    grazing = np.zeros(len(todo), np.bool_)
+    if steep is not None and config.tiles.min_ray_depression_deg > 0:
+        grazing = batch.valid & (np.asarray(steep) < config.tiles.min_returns)
+        p = np.where(grazing, np.float32(np.nan), p).astype(np.float32)
+    return Judgement(batch, ground, p_net, p, guard, ood, grazing)
 
 
 def _cut_tiles(counts: Counts, todo: np.ndarray, config: AssessorConfig, ground: TileGround,

@@ -11,7 +11,7 @@ import numpy as np
 from landing_zone.errors import ConfigError
 from landing_zone.judging.judgement import Judgement
 
-__all__ = ['TileState', 'FIELDS']
+__all__ = ['TileState', 'TileCounts', 'FIELDS']
 
 # name: (dtype, value of a tile never judged)
 FIELDS: dict[str, tuple[type, object]] = {
@@ -30,6 +30,7 @@ FIELDS: dict[str, tuple[type, object]] = {
     'clearance': (np.float32, np.nan),  # free height above the clutter [m]
     'overhead': (np.float32, np.nan),  # height of structure seen overhead [m]
     'ood': (np.float32, np.nan),  # OOD ratio of the tile's features
+    'grazing': (np.bool_, False),  # unknown: too few returns from steep rays
 }
 
 
@@ -52,6 +53,7 @@ class TileState:
     clearance: np.ndarray
     overhead: np.ndarray
     ood: np.ndarray
+    grazing: np.ndarray
 
     def __init__(self, origin: np.ndarray, shape: tuple[int, int]) -> None:
         self.origin = np.asarray(origin, np.int64).copy()
@@ -66,14 +68,8 @@ class TileState:
         if not d.any():
             return
         fresh = TileState(origin, self.shape)
-        sx, sy = self.shape
-        # overlap in old cell coordinates: [d, d + shape) ∩ [0, shape)
-        a = np.maximum(d, 0)
-        b = np.minimum(d + np.array([sx, sy]), [sx, sy])
-        if np.all(b > a):
-            for name in FIELDS:
-                getattr(fresh, name)[a[0] - d[0]:b[0] - d[0], a[1] - d[1]:b[1] - d[1]] = \
-                    getattr(self, name)[a[0]:b[0], a[1]:b[1]]
+        for name in FIELDS:
+            _shift(getattr(self, name), getattr(fresh, name), d)
         self.__dict__.update(fresh.__dict__)
 
     def cells(self, index: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,6 +108,7 @@ class TileState:
         self.n_returns[i, j] = batch.n_returns[inside]
         self.confidence[i, j] = confidence[inside]
         self.ood[i, j] = found.ood[inside]
+        self.grazing[i, j] = found.grazing[inside]
 
     def export(self) -> dict[str, np.ndarray]:
         """Copies of the origin and every field, keyed ``tiles.NAME``."""
@@ -133,6 +130,63 @@ class TileState:
         for name in FIELDS:
             a = state.get(f'tiles.{name}')
             want = getattr(self, name)
+            if a is None and name == 'grazing':
+                continue  # a snapshot older than the field: no tile made unknown by it
             if not isinstance(a, np.ndarray) or a.shape != want.shape or a.dtype != want.dtype:
                 raise ConfigError(f'tile state {name!r} does not fit {want.shape} {want.dtype}')
             setattr(self, name, a.copy())
+
+
+class TileCounts:
+    """A count per tile on the map's tile window, added to at every cloud and moved with the
+    window as the cloud moves it (unlike :class:`TileState`, which moves at a pass).
+
+    Holds the returns that came from rays at least ``tiles.min_ray_depression_deg`` below the
+    horizontal: a tile seen only at grazing angles (a ground vehicle's view) is not judged.
+    """
+
+    def __init__(self, origin: np.ndarray, shape: tuple[int, int], tile_size: float) -> None:
+        self.origin = np.asarray(origin, np.int64).copy()
+        self.shape = shape
+        self.tile_size = float(tile_size)
+        self.counts = np.zeros(shape, np.int64)
+
+    def move(self, origin: np.ndarray) -> None:
+        """Re-anchor at ``origin``: keep the tiles still inside, forget those that left."""
+        origin = np.asarray(origin, np.int64)
+        d = origin - self.origin
+        if d.any():
+            fresh = np.zeros(self.shape, np.int64)
+            _shift(self.counts, fresh, d)
+            self.counts, self.origin = fresh, origin.copy()
+
+    def add(self, xy: np.ndarray, where: np.ndarray) -> None:
+        """Count the returns at ``xy`` ((N, 2) [m], any float dtype) where ``where`` ((N,)
+        bool) into their tiles; those outside the window are not counted."""
+        sx, sy = self.shape
+        # tile coordinates in the points' own float dtype (whole numbers, exact far past the
+        # window's extent)
+        scale = 1.0 / self.tile_size
+        i = np.floor(xy[:, 0] * scale) - float(self.origin[0])
+        j = np.floor(xy[:, 1] * scale) - float(self.origin[1])
+        ok = where & (i >= 0) & (i < sx) & (j >= 0) & (j < sy)
+        flat = (i[ok] * sy + j[ok]).astype(np.intp)
+        self.counts += np.bincount(flat, minlength=sx * sy).reshape(self.shape)
+
+    def take(self, index: np.ndarray) -> np.ndarray:
+        """(K,) counts of the global tiles ``index`` ((K, 2)); 0 outside the window."""
+        rel = np.asarray(index, np.int64).reshape(-1, 2) - self.origin
+        inside = np.all((rel >= 0) & (rel < self.shape), axis=1)
+        out = np.zeros(len(rel), np.int64)
+        out[inside] = self.counts[rel[inside, 0], rel[inside, 1]]
+        return out
+
+
+def _shift(old: np.ndarray, fresh: np.ndarray, d: np.ndarray) -> None:
+    """Copy into ``fresh`` the cells of ``old`` still inside a window moved by ``d`` tiles."""
+    sx, sy = old.shape
+    # overlap in old cell coordinates: [d, d + shape) ∩ [0, shape)
+    a = np.maximum(d, 0)
+    b = np.minimum(d + np.array([sx, sy]), [sx, sy])
+    if np.all(b > a):
+        fresh[a[0] - d[0]:b[0] - d[0], a[1] - d[1]:b[1] - d[1]] = old[a[0]:b[0], a[1]:b[1]]

@@ -7,6 +7,8 @@ plus a string-to-string header; loading it runs no code from the file, unlike pi
 * the map's window and counts exactly as stored (hot bytes, cold blocks; see
   :meth:`DensityMap.export_state`), the tiles the map has marked changed since the last pass,
 * the tiles' results (P(safe), confidence, ground height, ...) and the newest cloud stamp,
+* per tile, the returns from steep rays (``tiles.min_ray_depression_deg``, the angle with them;
+  a snapshot without them loads, each tile's return count standing in),
 * a JSON header: format version, frame, the map's and tiles' geometry, the mode (follow, or the
   fixed region's centre), the model's weight digest, the OOD reference's digest and when it
   was written.

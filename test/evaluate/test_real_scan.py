@@ -78,6 +78,9 @@ def test_a_frame_through_the_assessor(tmp_path):
     # seen from 1.5 m, no tile past 5 m holds a return from a ray 20 degrees steep
     rule = {r['depression_deg']: r for r in doc['view_rule']['angles']}
     assert rule[20.0]['still_judged'] == 0 and rule[20.0]['would_be_unknown'] == doc['judged']
+    # and the assessor applies that rule (tiles.min_ray_depression_deg): the network still
+    # reads the tiles, but none is judged
+    assert doc['judged'] == 0 and any(t['p_net'] is not None for t in doc['tiles'])
     assert rule[5.0]['still_judged'] >= rule[10.0]['still_judged']
     text = markdown_scan(doc)
     assert '| clear:concrete |' in text and '(must be 0)' in text
