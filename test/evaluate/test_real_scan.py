@@ -82,6 +82,10 @@ def test_a_frame_through_the_assessor(tmp_path):
     # reads the tiles, but none is judged
     assert doc['judged'] == 0 and any(t['p_net'] is not None for t in doc['tiles'])
     assert rule[5.0]['still_judged'] >= rule[10.0]['still_judged']
+    # with the rule off the same frame is judged, and the table says what 20 degrees would take
+    off = assess_scan(b, lab, model=tmp_path / 'm.safetensors', grazing_rule=False)
+    rule_off = {r['depression_deg']: r for r in off['view_rule']['angles']}
+    assert off['judged'] > 0 and rule_off[20.0]['would_be_unknown'] == off['judged']
     text = markdown_scan(doc)
     assert '| clear:concrete |' in text and '(must be 0)' in text
     with pytest.raises(ConfigError, match='not float32'):

@@ -43,6 +43,7 @@ import json
 import math
 import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -257,7 +258,8 @@ def _alternatives(judged: np.ndarray, observed_fraction: np.ndarray, n_returns: 
 
 def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[str], *,
                 model: str | os.PathLike[str] | None = None, forward_deg: float = 180.0,
-                ahead: float = 10.0, angles: Sequence[float] = DEPRESSIONS) -> dict[str, Any]:
+                ahead: float = 10.0, angles: Sequence[float] = DEPRESSIONS,
+                grazing_rule: bool = True) -> dict[str, Any]:
     """Level, assess and score one labelled frame (module docstring).
 
     Args:
@@ -266,6 +268,9 @@ def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[
         forward_deg: heading of the vehicle's forward direction in the scan's frame [deg].
         ahead: distance from the sensor to the map's centre along it [m].
         angles: depression angles [deg] at which the view rule is measured.
+        grazing_rule: judge as the product does (``tiles.min_ray_depression_deg`` at its
+            default); False turns the rule off, so the frame is judged as without it and the
+            ``view_rule`` table shows what each angle would take.
 
     Returns:
         ``{'scan', 'level', 'center', 'classes', 'by_label', 'must_hold', 'view_rule',
@@ -286,6 +291,8 @@ def assess_scan(bin_path: str | os.PathLike[str], label_path: str | os.PathLike[
     h = math.radians(forward_deg)
     center = (ahead * math.cos(h), ahead * math.sin(h))
     cfg = AssessorConfig()
+    if not grazing_rule:
+        cfg = replace(cfg, tiles=replace(cfg.tiles, min_ray_depression_deg=0.0))
     ts = cfg.tiles.tile_size
     assessor = Assessor(cfg, center=center, model=model)
     try:
@@ -454,10 +461,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="the map's centre, this far ahead of the sensor [m]")
     ap.add_argument('--flight', type=Path, action='append', default=[],
                     help='also measure the view rule on this flight bag (labels beside it)')
+    ap.add_argument('--no-grazing-rule', action='store_true',
+                    help='judge with tiles.min_ray_depression_deg at 0 (the rule off), to see '
+                         'what each angle of the view rule would take')
     ap.add_argument('--json', type=Path, default=None, help='write the figures here')
     args = ap.parse_args(argv)
     doc = assess_scan(args.bin, args.label, model=args.model, forward_deg=args.forward_deg,
-                      ahead=args.ahead)
+                      ahead=args.ahead, grazing_rule=not args.no_grazing_rule)
     print(markdown_scan(doc), end='')
     flights = [flight_view(b, model=args.model) for b in args.flight]
     for f in flights:
