@@ -272,19 +272,7 @@ class Assessor:
         if deg <= 0:
             return
         self._steep.move(self._window.tile_origin())
-        # dz^2 >= tan^2(A) (dx^2 + dy^2) with dz > 0: no trigonometry per return, in place, in
-        # the points' own dtype; NaN rows compare False, an infinite drop is no direction
-        ox, oy, oz = (float(v) for v in org)
-        dz = oz - pts[:, 2]
-        h = pts[:, 0] - ox
-        dy = pts[:, 1] - oy
-        h *= h
-        dy *= dy
-        h += dy
-        h *= math.tan(math.radians(deg)) ** 2
-        steep = (dz > 0) & (dz < math.inf)
-        steep &= np.multiply(dz, dz, out=dy) >= h
-        self._steep.add(pts, steep)
+        self._steep.add_steep(pts, org, deg)
 
     def _read_counts(self, tiles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Copy of the counts the tiles' inputs read (as
