@@ -6,10 +6,10 @@
 2. :func:`landing_zone.replay.replay` runs the node's pipeline on it with the map fixed on the
    site (a region of interest centred on it, as the node's ``region_center`` parameter and
    ``replay --center`` fix it), writing ``assessed.mcap`` and ``report.json``;
-   :func:`landing_zone.tools.map_png.render_png` draws ``map.png``. The node, ``replay``,
-   ``evaluate-flights`` and ``Assessor()`` follow the sensor by default instead, and so judge
-   other tiles: the demo says so and prints the ``landing-zone replay`` command that gives its
-   figures.
+   :func:`landing_zone.tools.map_png.render_png` draws ``map.png``. The node, ``replay`` and
+   ``Assessor()`` follow the sensor by default instead, and so judge other tiles
+   (``evaluate-flights`` fixes each map on its labels, as the demo does): the demo says so and
+   prints the ``landing-zone replay`` command that gives its figures.
 3. The tile map is printed with one glyph per P(safe) band, coloured on a terminal (green safe,
    red unsafe, grey not judged), so piped output keeps the bands; an ``X`` marks the tiles an
    obstacle really overlaps. Then the AUC of the per-tile P(safe) against the labels over the
@@ -291,8 +291,8 @@ def _print_sites(console: Console, a: Assessment) -> None:
 def _print_outputs(console: Console, out: Path, command: str) -> None:
     """The files written; why the demo fixes the map, and the replay command that does too."""
     console.print(f'wrote {out / "report.json"}, {out / "map.png"}, {out / "assessed.mcap"}')
-    console.print('\nThe demo fixes the map on the site. The node, `landing-zone replay`, '
-                  '`evaluate-flights` and `Assessor()` follow the sensor by default instead, '
+    console.print('\nThe demo fixes the map on the site, as `evaluate-flights` does. The node, '
+                  '`landing-zone replay` and `Assessor()` follow the sensor by default instead, '
                   'judging a window around it: other tiles, another best site. The same '
                   'tiles and sites from replay (on the node: the parameter region_center):')
     # soft_wrap: the command stays on one line, to be copied whole
