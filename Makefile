@@ -31,7 +31,7 @@ bench: $(STAMP)
 	$(VENV)/bin/landing-zone bench
 
 lint: $(STAMP)
-	$(PY) -m flake8 landing_zone msg_adapters test
+	$(PY) -m flake8 landing_zone msg_adapters test launch
 	$(PY) -m mypy
 
 clean:

@@ -21,7 +21,7 @@ CLOUD_FRAMES = ('fixed', 'body', 'sensor')
 class StreamConfig:
     """The stream's timing (:mod:`landing_zone.runtime.stream`), shared by node and replay."""
 
-    assessment_period: float = param(1.0, 'Stamp time between assessments', 's', (0.0, 60.0),
+    assessment_period: float = param(0.5, 'Stamp time between assessments', 's', (0.0, 60.0),
                                      open_lo=True)
     pose_tolerance: float = param(0.05, "How far a cloud may lie outside the poses' span", 's',
                                   (0.0, 10.0))

@@ -116,7 +116,8 @@ def test_overlapped_passes_are_the_passes_run_one_after_another(replayed, flight
     from landing_zone.runtime.stream import Stream
 
     res, d = replayed
-    stream = Stream(Assessor(small_config(), model=model_file), StreamConfig())
+    stream = Stream(Assessor(small_config(), model=model_file),
+                    StreamConfig(assessment_period=1.0))  # the replayed fixture's period
     expect = []
     for m in read_messages(flight[0], ['/lidar/points', '/lidar/pose']):
         (stream.add_pose_msg if m.topic == '/lidar/pose' else stream.add_cloud_msg)(m.msg)
@@ -136,7 +137,8 @@ def test_overlapped_passes_are_the_passes_run_one_after_another(replayed, flight
     # and replay's own switches give the same bag: passes in turn, and no warm-up (the
     # warm-up runs on a scratch map and stream of its own; the stream above had none)
     seq = replay(flight[0], d / 'seq.mcap', None, model=model_file, config=small_config(),
-                 progress=False, overlap=False, warm=False)
+                 stream_config=StreamConfig(assessment_period=1.0), progress=False,
+                 overlap=False, warm=False)
     assert seq.assessments == res.assessments
     assert [m.msg.data.tobytes() for m in read_messages(d / 'seq.mcap', [
         '/assessor/safety_grid'])] == [g.data.tobytes() for g in grids]
@@ -160,7 +162,8 @@ def test_replay_is_deterministic_and_fixed_mode_stays_put(tmp_path, flight, repl
                                                           model_file):
     res, d = replayed
     again = replay(flight[0], tmp_path / 'o.mcap', tmp_path / 'r.json', model=model_file,
-                   config=small_config(), progress=False)
+                   config=small_config(), stream_config=StreamConfig(assessment_period=1.0),
+                   progress=False)
     a = json.loads((d / 'report.json').read_text())
     b = json.loads((tmp_path / 'r.json').read_text())
     assert a['tiles'] == b['tiles'] and a['landing_sites'] == b['landing_sites']
