@@ -83,7 +83,7 @@ class LiveConfig:
     # the cloud-to-grid latency: with passes only every assessment_period of stamp time a
     # cloud waits half a period on average before a pass takes it in
     eager_interval: float = param(
-        0.25, 'A pass also starts before it is due once integration has caught up and this '
+        0.15, 'A pass also starts before it is due once integration has caught up and this '
         'long passed since the last began; 0: only every assessment_period', 's', (0.0, 60.0))
 
     def validate(self) -> None:
