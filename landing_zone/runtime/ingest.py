@@ -44,18 +44,15 @@ import numpy as np
 
 from landing_zone.config import LiveConfig
 from landing_zone.errors import LandingZoneError
-from landing_zone.runtime.receive import (MIN_PLACE_RETURNS, PLACE_RETURNS, POINTS_TYPE,
-                                          ReceiveQueue, SequenceGaps, _declared_size, _Entry,
-                                          decode_cloud)
+from landing_zone.runtime.receive import (POINTS_TYPE, ReceiveQueue, SequenceGaps,
+                                          _declared_size, _Entry, decode_cloud)
 from landing_zone.runtime.stream import CLOUD_REASONS, POINT_REASONS, POSE_REASONS, NS
 
 if TYPE_CHECKING:
     from landing_zone.assessor import Assessment, Assessor
     from landing_zone.runtime.stream import Stream
 
-__all__ = ['SequenceGaps', 'ReceiveQueue', 'LivePipeline', 'LIVE_CLOUD_REASONS',
-           'warm_up', 'decode_cloud', 'stale_level', 'PLACE_RETURNS', 'MIN_PLACE_RETURNS',
-           'POINTS_TYPE', '_declared_size', '_Entry']
+__all__ = ['LivePipeline', 'LIVE_CLOUD_REASONS', 'warm_up', 'stale_level']
 
 # Reasons for clouds the stream never saw (the stream's own reasons are CLOUD_REASONS).
 LIVE_CLOUD_REASONS = ('transport', 'missed_at_start', 'overload')

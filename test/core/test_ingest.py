@@ -11,8 +11,8 @@ from landing_zone.assessor import Assessor
 from landing_zone.io.bags import RawBag
 from landing_zone.errors import ConfigError
 from landing_zone.config import LiveConfig
-from landing_zone.runtime.ingest import (PLACE_RETURNS, LivePipeline, ReceiveQueue,
-                                         SequenceGaps, warm_up)
+from landing_zone.runtime.ingest import LivePipeline, warm_up
+from landing_zone.runtime.receive import PLACE_RETURNS, ReceiveQueue, SequenceGaps
 from landing_zone.replay import replay
 from landing_zone.config import StreamConfig
 from landing_zone.runtime.stream import Stream
@@ -85,7 +85,7 @@ def test_a_flood_of_tiny_clouds_does_not_push_out_the_real_ones():
 
 def test_points_of_a_serialized_cloud_are_read_from_its_bytes(flight):
     from msg_adapters import jazzy_typestore as typestore
-    from landing_zone.runtime.ingest import _declared_size
+    from landing_zone.runtime.receive import _declared_size
 
     for topic, data in raw_messages(flight):
         if topic == '/lidar/points':

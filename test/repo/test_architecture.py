@@ -61,7 +61,7 @@ def test_the_paths_it_names_exist():
     rel = set(re.findall(r'\b((?:mapping|judging|runtime|ros|io|tools)/[\w/]+\.py)\b', doc))
     missing = sorted(p for p in rel if not (ROOT / 'landing_zone' / p).is_file())
     assert not missing, f'docs/ARCHITECTURE.md names modules that do not exist: {missing}'
-    # dotted names the text gives (runtime.ingest.ReceiveQueue, mapping.parts.PartRunner, ...)
+    # dotted names the text gives (runtime.receive.ReceiveQueue, mapping.parts.PartRunner, ...)
     for dotted in set(re.findall(r'`((?:mapping|judging|runtime|tools)\.[\w.]+)`', doc)):
         parts = dotted.split('.')
         assert any((ROOT / 'landing_zone' / Path(*parts[:i])).with_suffix('.py').is_file()
