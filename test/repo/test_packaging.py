@@ -16,6 +16,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
+from test_layout import modules  # the package's modules, named as imports name them
 
 ROOT = Path(__file__).resolve().parents[2]
 SOURCES = ('setup.py', 'setup.cfg', 'package.xml', 'resource', 'config', 'launch', 'models',
@@ -176,17 +177,6 @@ CLI = 'landing_zone.tools.cli'
 CLI_PATH = {CLI: ('main', 'command', '_version', '_root'), f'{CLI}.run': ('replay',)}
 
 
-def _module_files() -> dict[str, Path]:
-    out = {}
-    for pkg in ('landing_zone', 'msg_adapters'):
-        for path in sorted((ROOT / pkg).rglob('*.py')):
-            parts = list(path.relative_to(ROOT).with_suffix('').parts)
-            if parts[-1] == '__init__':
-                parts = parts[:-1]
-            out['.'.join(parts)] = path
-    return out
-
-
 def _imports(name: str, path: Path, functions: tuple[str, ...] | None) -> set[str]:
     """What module ``name`` imports at run time: everywhere (functions None), or at module level
     and inside the top-level ``functions``; imports under TYPE_CHECKING are left out."""
@@ -228,7 +218,7 @@ def _imports(name: str, path: Path, functions: tuple[str, ...] | None) -> set[st
 def _closure(roots: list[str]) -> tuple[set[str], dict[str, set[str]]]:
     """The project modules reached from ``roots`` and the third-party top-level modules they
     import (name -> the modules importing it), standard library left out."""
-    files = _module_files()
+    files = modules()
     seen: set[str] = set()
     third: dict[str, set[str]] = {}
     todo = list(roots)
@@ -299,7 +289,7 @@ def test_every_offline_import_has_an_extra():
     provided = set(_requirement_names(ast.literal_eval(kw['install_requires'])))
     for extra in kw['extras_require'].values:
         provided |= set(_requirement_names(ast.literal_eval(extra)))
-    _, third = _closure(sorted(_module_files()))
+    _, third = _closure(sorted(modules()))
     missing = {top: sorted(users)[:3] for top, users in third.items()
                if top not in ROS and DISTRIBUTIONS.get(top, top) not in provided}
     assert not missing, f'imported but in no requirement: {missing}'
