@@ -6,8 +6,9 @@ import pytest
 
 from landing_zone.judging.sites import (CLEARANCE, OBSTACLE, SLOPE, UNKNOWN,
                                         evaluate_candidates)
-from landing_zone.tools.evaluate.flights import (_figures, _site_figures, footprint_figures,
-                                                 footprint_truth, markdown_flights,
+from landing_zone.tools.evaluate.flights import (_figures, _site_figures, flight_groups,
+                                                 footprint_figures, footprint_truth,
+                                                 grouped_figures, markdown_flights,
                                                  operating_curve, pooled_figures)
 from landing_zone.io.labels import tile_truth
 
@@ -100,6 +101,32 @@ def test_pooled_footprints_sum_and_share_one_threshold():
     table = markdown_flights({'flights': [a, b], 'pooled': pooled})
     assert '| a.mcap | 100.0% | 50.0% (1 of 2) | 1 of 1 | 0.0% (P >= -) |' in table
     assert '| **pooled** | 100.0% | 75.0% (3 of 4) | 1 of 1 | 25.0% (P >= 0.990) |' in table
+
+
+def test_flights_are_grouped_by_obstacle_family_and_vegetation():
+    labels = {'obstacles': [{'kind': 'rock'}, {'kind': 'tire'}, {'kind': 'rock'}],
+              'site': {'vegetation': {'preset': 'clumped'}},
+              'flight': {'families': [], 'vegetation_family': None}}
+    assert flight_groups(labels) == {'obstacles': 'rock,tire', 'vegetation': 'clumped'}
+    labels['flight'] = {'families': ['coil'], 'vegetation_family': 'meadow'}
+    assert flight_groups(labels) == {'obstacles': 'coil', 'vegetation': 'meadow'}
+    assert flight_groups({'tiles': []}) == {'obstacles': 'none', 'vegetation': 'unknown'}
+
+    a = _flight('a.mcap', [0.95, 0.2], [1, 0], [0, 0, OBSTACLE], [0.9, 0.97, 0.5], [1, 0, 1], 2)
+    b = _flight('b.mcap', [0.92, 0.93], [1, 1], [0, 0], [0.99, 0.85], [1, 1], 3)
+    c = _flight('c.mcap', [0.3, 0.99], [0, 1], [0, 0], [0.2, 0.99], [0, 1], 2)
+    for f, obstacles, vegetation in ((a, 'coil', 'meadow'), (b, 'coil', 'forb'),
+                                     (c, 'hoop', 'meadow')):
+        f.update(obstacles=obstacles, vegetation=vegetation)
+    groups = grouped_figures([a, b, c])
+    assert set(groups) == {'obstacles', 'vegetation'}
+    assert groups['obstacles']['coil'] == {'flights': 2, **pooled_figures([a, b])}
+    assert groups['vegetation']['meadow'] == {'flights': 2, **pooled_figures([a, c])}
+    assert groups['vegetation']['forb']['clear_footprints'] == b['clear_footprints']
+    table = markdown_flights({'flights': [a, b, c], 'pooled': pooled_figures([a, b, c]),
+                              'groups': groups})
+    assert '| obstacles | flights | AUC |' in table and '| vegetation | flights |' in table
+    assert '| coil | 2 | ' in table and '| hoop | 1 | ' in table
 
 
 @pytest.fixture(scope='module')

@@ -1,5 +1,5 @@
-"""Simulating: datasets of labelled patches (simulate), flights as bags (simulate-flight)
-and pictures of what the simulator made (render). The simulator (trimesh, embreex) is the
+"""Simulating: datasets of labelled patches (simulate), flights as bags (simulate-flight),
+the sets of flights the product is judged on (simulate-flights) and pictures of what the simulator made (render). The simulator (trimesh, embreex) is the
 `[sim]` extra, imported by each command."""
 from __future__ import annotations
 
@@ -233,6 +233,41 @@ def _odometry_flight(cfg: object, out: Path, cloud_frame: str,
           f'{odo.pose_topic}, clouds in the {odo.cloud_frame} frame on {odo.points_topic}) and '
           f'{r.labels}; replay it with: landing-zone replay {odo.bag} '
           + ' '.join(odo.replay_args()))
+
+
+class FlightSet(str, Enum):
+    heldout = 'heldout'
+    development = 'development'
+
+
+@app.command(name='simulate-flights',
+             help='A set of flights, one obstacle family and one vegetation each, with their '
+                  'ground truth, for evaluate-flights. heldout: obstacle families and '
+                  'vegetation no shipped training saw (the yardstick: never tune on it, and '
+                  'publish from a fresh seed); development: the training families, for tuning '
+                  'what comes after the network. Scan pattern, height, density, slope and '
+                  'roughness are drawn from the seed. Flights already in OUT are kept, so an '
+                  'interrupted run resumes.\n\n'
+                  'Examples:\n\n  landing-zone simulate-flights --set heldout --seed 7 --out '
+                  'heldout\n\n  landing-zone evaluate-flights heldout/*.mcap --json '
+                  'heldout.json')
+def simulate_flights(
+    out: Annotated[Path, typer.Option(help='Directory of the set.')],
+    set_name: Annotated[FlightSet, typer.Option('--set', help='Which set.')] = FlightSet.heldout,
+    seed: Annotated[int, typer.Option(help='Seed of the set.')] = 0,
+    repeats: Annotated[int, typer.Option(
+        help='Flights of each obstacle family and vegetation.')] = 2,
+    workers: Annotated[Optional[int], typer.Option(
+        help='Processes (default: one per core).')] = None,
+    engine: Annotated[Engine, typer.Option(help=ENGINE_HELP)] = Engine.local,
+    address: Annotated[Optional[str], typer.Option(help=ADDRESS_HELP)] = None,
+) -> None:
+    from landing_zone.tools.sim.flight_sets import simulate_set
+
+    bags = simulate_set(set_name.value, seed, out, repeats=repeats, workers=workers,
+                        engine=engine.value, address=address)
+    print(f'{len(bags)} flights of the {set_name.value} set (seed {seed}) in {out}; score '
+          f'them with: landing-zone evaluate-flights {out}/*.mcap')
 
 
 @app.command(help='Side and top view of simulated returns coloured by what they hit (ground, '

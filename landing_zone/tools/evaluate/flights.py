@@ -51,6 +51,12 @@ Where the robot acts, every footprint centred on a tile, judged with the shipped
   most ``k`` footprints over an obstacle are accepted, and the clear footprints accepted there
   (``{'k': {'threshold', 'clear_accepted', 'share'}}``).
 
+Each flight is also named by what its labels say it holds: ``obstacles`` (its obstacles'
+families or kinds, comma separated; ``none``) and ``vegetation`` (its vegetation family, else
+its preset). ``groups`` pools the flights by each (``{'obstacles': {name: figures},
+'vegetation': {...}}``): the per-family table of a flight set (:mod:`landing_zone.tools.sim.
+flight_sets`).
+
 Pooled figures are computed on the tiles (and footprints) of all flights together, not
 averaged over flights: the operating curve is one threshold over every flight's footprints.
 Flights are independent tasks (:mod:`landing_zone.tools.engines`): a process pool here or Ray
@@ -73,7 +79,8 @@ from landing_zone.errors import BagError, ConfigError
 
 __all__ = ['THRESHOLD', 'CONFIDENT', 'FIGURES', 'CURVE_ERRORS', 'flight_task', 'score_flight',
            'footprint_truth', 'footprint_figures', 'operating_curve', 'pooled_figures',
-           'evaluate_flights', 'markdown_flights']
+           'flight_groups', 'grouped_figures', 'evaluate_flights', 'markdown_flights']
+GROUPS = ('obstacles', 'vegetation')
 
 THRESHOLD = 0.5  # P(safe) from which an obstacle tile counts as passed (docs/INTERFACES.md §2)
 CONFIDENT = 0.9  # ... counts as passed confidently: what a planner acting on 0.9 lands on
@@ -253,6 +260,19 @@ def flight_task(bag: str | os.PathLike[str], *, model: str | os.PathLike[str] | 
             'center_from': 'labels' if center is None else 'given'}
 
 
+def flight_groups(labels: dict[str, Any]) -> dict[str, str]:
+    """What a flight holds, from its labels: ``obstacles`` (families, else kinds, comma
+    separated; ``none`` without obstacles) and ``vegetation`` (family, else preset; ``unknown``
+    where the labels do not say)."""
+    flight = labels.get('flight') or {}
+    site = labels.get('site') or {}
+    kinds = sorted({str(o.get('kind')) for o in labels.get('obstacles', [])})
+    families = [str(f) for f in flight.get('families') or []]
+    vegetation = (flight.get('vegetation_family')
+                  or (site.get('vegetation') or {}).get('preset') or 'unknown')
+    return {'obstacles': ','.join(families or kinds) or 'none', 'vegetation': str(vegetation)}
+
+
 def score_flight(task: dict[str, Any]) -> dict[str, Any]:
     """Replay one flight (a :func:`flight_task`) with its map fixed on the task's centre and
     score its final tiles.
@@ -280,7 +300,8 @@ def score_flight(task: dict[str, Any]) -> dict[str, Any]:
     n_labelled = len(labels['tiles'])
     out: dict[str, Any] = {'bag': task['bag'], 'labels': task['labels'],
                            'center': [float(c) for c in center],
-                           'center_from': task.get('center_from', 'labels')}
+                           'center_from': task.get('center_from', 'labels'),
+                           **flight_groups(labels)}
     outside = n_labelled - int((truth >= 0).sum())
     out['labels_outside_map'] = outside
     if outside:
@@ -344,6 +365,19 @@ def pooled_figures(flights: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
+def grouped_figures(flights: Sequence[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """:func:`pooled_figures` of the flights of each obstacle family and of each vegetation
+    (:data:`GROUPS`), by name."""
+    out: dict[str, dict[str, Any]] = {}
+    for group in GROUPS:
+        names = sorted({str(f.get(group, 'unknown')) for f in flights})
+        out[group] = {n: {'flights': sum(f.get(group, 'unknown') == n for f in flights),
+                          **pooled_figures([f for f in flights
+                                            if f.get(group, 'unknown') == n])}
+                      for n in names}
+    return out
+
+
 def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'local',
                      address: str | None = None, workers: int | None = None,
                      model: str | os.PathLike[str] | None = None,
@@ -394,7 +428,8 @@ def evaluate_flights(bags: Sequence[str | os.PathLike[str]], *, engine: str = 'l
     doc = {'engine': engine, 'model': None if model is None else str(model),
            'threshold': THRESHOLD,
            'flights': [{k: v for k, v in f.items() if not k.startswith('_')} for f in flights],
-           'pooled': pooled_figures(flights), 'workers': n, 'seconds': round(seconds, 3),
+           'pooled': pooled_figures(flights), 'groups': grouped_figures(flights),
+           'workers': n, 'seconds': round(seconds, 3),
            'flights_per_s': round(len(flights) / seconds, 4) if seconds > 0 else None}
     if json_path is not None:
         path = Path(json_path)
@@ -443,7 +478,26 @@ def markdown_flights(doc: dict[str, Any]) -> str:
                 f'{f["obstacle_footprints"]} | '
                 + ' | '.join(f'{num(c["share"], ".1%")} (P >= {num(c["threshold"], ".3f")})'
                              for c in curve) + ' |')
+    for group, table in doc.get('groups', {}).items():
+        if len(table) > 1:
+            lines += [''] + _group_table(group, table, num)
     notes = [f'{Path(f["bag"]).name}: {f["note"]}' for f in doc['flights'] if f.get('note')]
     if notes:
         lines += [''] + notes
     return '\n'.join(lines) + '\n'
+
+
+def _group_table(group: str, table: dict[str, Any], num: Any) -> list[str]:
+    """The headline figures of each group of flights (an obstacle family, a vegetation)."""
+    lines = [f'| {group} | flights | AUC | ECE | obstacle tiles at >= 0.9 | safe tiles at >= 0.9 '
+             '| clear footprints accepted | footprints over an obstacle accepted | clear '
+             'accepted at 0 over an obstacle |', '|---|---:|---:|---:|---:|---:|---:|---:|---:|']
+    for name, f in table.items():
+        zero = (f.get('operating_curve') or {}).get('0') or {}
+        lines.append(f'| {name} | {f["flights"]} | {num(f["auc"], ".3f")} | '
+                     f'{num(f["ece"], ".3f")} | {num(f["obstacle_passed_0.9"], ".1%")} | '
+                     f'{num(f.get("safe_passed_0.9"), ".1%")} | '
+                     f'{num(f.get("clear_accepted_share"), ".1%")} | '
+                     f'{f.get("obstacle_accepted", 0)} of {f.get("obstacle_footprints", 0)} | '
+                     f'{num(zero.get("share"), ".1%")} |')
+    return lines
