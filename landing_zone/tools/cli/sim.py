@@ -1,6 +1,7 @@
 """Simulating: datasets of labelled patches (simulate), flights as bags (simulate-flight),
-the sets of flights the product is judged on (simulate-flights) and pictures of what the simulator made (render). The simulator (trimesh, embreex) is the
-`[sim]` extra, imported by each command."""
+the sets of flights the product is judged on (simulate-flights) and pictures of what the
+simulator made (render). The simulator (trimesh, embreex) is the `[sim]` extra, imported by
+each command."""
 from __future__ import annotations
 
 import math
