@@ -196,9 +196,13 @@ class Assessor:
                                                                     self.tile_vox)
         self.ood, self.ood_path = load_ood(cfg, self.model, self.model_metadata,
                                            self.model_path)
-        from landing_zone.judging.inference import Predictor  # torch: when a model is loaded
-        # owns the inference copy and torch's thread count until close()
-        self._predictor = Predictor(self.model)
+        # torch: when a model is loaded
+        from landing_zone.judging.inference import Predictor, prior_shift
+        # owns the inference copy and torch's thread count until close(); P(safe) at the
+        # prior stated (model.obstacle_prior), from the one the model was calibrated at
+        calibrated_at = float(self.model_metadata.get('calibration_prior', 0.5))
+        self._predictor = Predictor(self.model, logit_shift=prior_shift(
+            cfg.model.obstacle_prior, calibrated_at))
         self._map_lock = threading.Lock()  # the map and the tile window's placement
         self._state_lock = threading.Lock()  # the tile results
         self._assess_lock = threading.Lock()  # one assessment pass at a time

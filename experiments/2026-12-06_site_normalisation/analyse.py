@@ -15,7 +15,7 @@ from scipy.special import expit, logit
 from sklearn.metrics import roc_auc_score
 
 from landing_zone.judging.sites import OBSTACLE, _footprint_min, site_probabilities
-from landing_zone.tools.evaluate.flights import footprint_figures, operating_curve
+from landing_zone.tools.evaluate.footprints import footprint_figures, operating_curve
 from landing_zone.tools.learn.calibration import expected_calibration_error
 
 T = 0.9
@@ -76,6 +76,34 @@ def shift(c):
     return rule
 
 
+def model_rule(path):
+    """P(safe) of another net on the same cubes: its own calibration, the guard's cap, and the
+    tiles the shipped judgement left unknown kept unknown."""
+    import torch
+    from landing_zone.judging.checkpoint import load_model
+    from landing_zone.judging.net import judge
+    net, _ = load_model(path)
+    cache = {}
+
+    def rule(f):
+        key = f['meta']['name']
+        if key not in cache:
+            x = torch.from_numpy(f['cubes'].astype(np.float32) / 127.0)[:, None]
+            with torch.no_grad():
+                lg = np.concatenate([judge(net, x[i:i + 512], None, pooled=True)[0].numpy()
+                                     for i in range(0, len(x), 512)])
+            grid = np.full(f['p_safe'].shape, np.nan)
+            ij = f['cube_index'] - f['origin']
+            grid[ij[:, 0], ij[:, 1]] = expit(lg / net.temperature + net.offset)
+            cache[key] = grid
+        p = np.where(np.isfinite(f['p_safe']), cache[key], np.nan)
+        g = f.get('guard')
+        if g is not None:
+            p = np.where(np.nan_to_num(g) > 0, np.minimum(p, 0.05), p)
+        return p
+    return rule
+
+
 def site_norm(q=50, ref=3.0, only_up=True, cap=None, src='p_safe'):
     """Shift a site's logits so that its q-th percentile tile sits at ``ref``."""
     def rule(f):
@@ -97,9 +125,14 @@ def site_norm(q=50, ref=3.0, only_up=True, cap=None, src='p_safe'):
 
 
 if __name__ == '__main__':
-    fl = load(sys.argv[1:])
+    models = [a[len('--model='):] for a in sys.argv[1:] if a.startswith('--model=')]
+    fl = load([a for a in sys.argv[1:] if not a.startswith('--')])
     print(len(fl), 'flights')
     show('shipped', figures(fl, base))
+    for m in models:
+        show(Path(m).name, figures(fl, model_rule(m)))
+    if models:
+        sys.exit(0)
     for c in (1.0, 2.2):
         show(f'logit + {c}', figures(fl, shift(c)))
     for q in (25, 50, 75):

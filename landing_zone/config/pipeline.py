@@ -100,6 +100,13 @@ class ModelConfig:
     path: str = param('', 'Model file (.safetensors); empty: the shipped model', read_only=True)
     device: str = param('cpu', 'Inference device: cpu, cuda or cuda:N', read_only=True)
     batch_size: int = param(256, 'Tiles per forward pass', '', (1, 65536))
+    # The model is calibrated at the share its metadata states (an even one: the training
+    # scenes'); stating the site's own share moves every logit by the change in prior log odds
+    # (docs/LANDING_SITES.md, "A site's P(safe)"). A lower share raises P(safe) everywhere:
+    # raise landing_sites.min_p_safe with it to keep the same decisions.
+    obstacle_prior: float = param(
+        0.5, 'Share of tiles expected to hold an obstacle, at which P(safe) is calibrated', '',
+        (0.0, 1.0), open_lo=True, open_hi=True, read_only=True)
 
     def validate(self) -> None:
         _check_fields(self, 'model.')

@@ -9,6 +9,7 @@ change visible and undone. :func:`predict` is a one-shot Predictor.
 from __future__ import annotations
 
 import copy
+import math
 import os
 from types import TracebackType
 
@@ -18,7 +19,7 @@ import torch
 from landing_zone.errors import ConfigError
 from landing_zone.judging.ensemble import AnyNet
 
-__all__ = ['Predictor', 'predict', 'bf16_supported', 'usable_cores']
+__all__ = ['Predictor', 'predict', 'prior_shift', 'bf16_supported', 'usable_cores']
 
 
 def bf16_supported() -> bool:
@@ -42,6 +43,8 @@ class Predictor:
     Args:
         model: the net (its device is used).
         threads: torch intra-op threads while open, at least; default every usable core.
+        logit_shift: added to every calibrated logit (:func:`prior_shift`: P(safe) at
+            another prior than the model's calibration).
 
     Example::
 
@@ -49,8 +52,10 @@ class Predictor:
             p_safe = predictor(volumes)
     """
 
-    def __init__(self, model: AnyNet, threads: int | None = None) -> None:
+    def __init__(self, model: AnyNet, threads: int | None = None,
+                 logit_shift: float = 0.0) -> None:
         self.model = model
+        self.logit_shift = float(logit_shift)
         want = usable_cores() if threads is None else int(threads)
         self._restore: int | None = None
         if torch.get_num_threads() < want:
@@ -166,8 +171,8 @@ class Predictor:
         f = feats.numpy() if feats is not None else None
         if logits:
             return out.numpy(), f
-        return torch.sigmoid(out / float(model.temperature)
-                             + float(model.offset)).numpy(), f
+        return torch.sigmoid(out / float(model.temperature) + float(model.offset)
+                             + self.logit_shift).numpy(), f
 
     def close(self) -> None:
         """Put torch's thread count back (if this raised it) and drop the inference copy."""
@@ -182,6 +187,18 @@ class Predictor:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def prior_shift(obstacle_prior: float, calibrated_at: float = 0.5) -> float:
+    """What a calibrated logit of P(safe) moves by when the share of obstacle tiles expected
+    is ``obstacle_prior`` instead of the ``calibrated_at`` share the calibration was fitted at:
+    the change in the prior log odds of a safe tile (Bayes' rule; the likelihood ratio the net
+    measures is unchanged)."""
+    for name, v in (('obstacle_prior', obstacle_prior), ('calibrated_at', calibrated_at)):
+        if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
+            raise ConfigError(f'{name} must lie in (0, 1), got {v!r}')
+    return float(math.log((1.0 - obstacle_prior) / obstacle_prior)
+                 - math.log((1.0 - calibrated_at) / calibrated_at))
 
 
 def predict(model: AnyNet, inputs: np.ndarray | torch.Tensor, batch_size: int = 256,

@@ -131,6 +131,40 @@ def test_judged_tiles_are_the_networks_output_and_others_unknown(model_file):
     assert r.ground_z[r.lookup(1.5, 1.5)] > r.ground_z[r.lookup(-1.5, -1.5)] + 0.5
 
 
+def test_a_stated_obstacle_prior_moves_every_judgement_by_its_log_odds(tmp_path, model_file):
+    from scipy.special import logit
+
+    from landing_zone.errors import ConfigError
+    from landing_zone.judging.inference import prior_shift
+
+    assert prior_shift(0.5) == 0.0 and prior_shift(0.1) == pytest.approx(np.log(9.0))
+    assert prior_shift(0.2, calibrated_at=0.2) == 0.0 and prior_shift(0.9) < 0
+    with pytest.raises(ConfigError, match='obstacle_prior must lie in'):
+        prior_shift(0.0)
+
+    def judged(prior, model=model_file):
+        cfg = small_config()
+        cfg.guard.enabled = False
+        cfg.model.obstacle_prior = prior
+        with Assessor(cfg, model=model) as a:
+            fly(a, np.random.default_rng(3), SENSORS, half=2.5)
+            return a.assess().p_safe
+
+    even, rare = judged(0.5), judged(0.1)
+    known = np.isfinite(even) & np.isfinite(rare)
+    assert known.sum() > 3
+    # every tile the same way: the ranking is the net's, only the prior changed
+    np.testing.assert_allclose(logit(rare[known].astype(np.float64)) -
+                               logit(even[known].astype(np.float64)), np.log(9.0), atol=1e-3)
+    # a model calibrated at another share is moved from that share, as its metadata states
+    other = make_model(tmp_path / 'at20.safetensors', calibration_prior=0.2)
+    np.testing.assert_allclose(judged(0.2, other)[known], even[known], atol=1e-6)
+    with pytest.raises(ConfigError, match='model.obstacle_prior'):
+        cfg = small_config()
+        cfg.model.obstacle_prior = 1.0
+        cfg.validate()
+
+
 def test_only_changed_tiles_are_reassessed_and_the_result_matches_a_full_pass(model_file):
     rng = np.random.default_rng(4)
     clouds = [scene_cloud(rng, s, half=2.5) for s in SENSORS]

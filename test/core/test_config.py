@@ -29,8 +29,8 @@ def test_every_parameter_has_its_facts_and_a_default_inside_its_range():
     # sites' limits (max_slope_deg, max_step, min_clearance, clutter_height) +
     # tiles.align_to_ground + the stream's cloud_frame and sensor_offset + the node's
     # stale_after and stale_error + the receive path's eager_interval +
-    # tiles.min_ray_depression_deg
-    assert len(PARAMETERS) == 56
+    # tiles.min_ray_depression_deg + model.obstacle_prior
+    assert len(PARAMETERS) == 57
     for name, (default, p) in PARAMETERS.items():
         assert p.description and not p.description.endswith('.'), name
         if p.range is not None:

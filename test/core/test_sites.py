@@ -139,7 +139,7 @@ def test_one_doubtful_tile_bounds_its_footprints():
 
 
 def test_footprint_truth_is_every_tile_under_it_labelled_safe():
-    from landing_zone.tools.evaluate.flights import footprint_truth
+    from landing_zone.tools.evaluate.footprints import footprint_truth
 
     truth = np.ones((6, 6), np.int8)
     truth[1, 1] = 0   # an obstacle tile

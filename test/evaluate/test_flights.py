@@ -7,9 +7,10 @@ import pytest
 from landing_zone.judging.sites import (CLEARANCE, OBSTACLE, SLOPE, UNKNOWN,
                                         evaluate_candidates)
 from landing_zone.tools.evaluate.flights import (_figures, _site_figures, flight_groups,
-                                                 footprint_figures, footprint_truth,
                                                  grouped_figures, markdown_flights,
-                                                 operating_curve, pooled_figures)
+                                                 pooled_figures)
+from landing_zone.tools.evaluate.footprints import (footprint_figures, footprint_truth,
+                                                    operating_curve)
 from landing_zone.io.labels import tile_truth
 
 
