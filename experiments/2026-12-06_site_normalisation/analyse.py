@@ -133,8 +133,15 @@ if __name__ == '__main__':
         show(Path(m).name, figures(fl, model_rule(m)))
     if models:
         sys.exit(0)
-    for c in (1.0, 2.2):
-        show(f'logit + {c}', figures(fl, shift(c)))
+    prior = [float(a[len('--prior='):]) for a in sys.argv[1:] if a.startswith('--prior=')]
+    share = float(np.mean(np.concatenate([f['truth'][f['truth'] >= 0] == 0 for f in fl])))
+    print(f'obstacle tiles: {share:.3f} of the labelled')
+    for pi in prior + [share]:
+        c = float(np.log((1 - pi) / pi))
+        for t in (0.9, 0.95, 0.99):
+            show(f'stated prior {pi:.3f} (logit {c:+.2f}), t {t}', figures(fl, shift(c), t))
+    if prior:
+        sys.exit(0)
     for q in (25, 50, 75):
         for ref in (2.0, 3.0, 4.0):
             show(f'site q{q} -> {ref}', figures(fl, site_norm(q, ref)))
