@@ -49,6 +49,15 @@ def test_simulate_families_are_checked_in_one_line(tmp_path):
     assert not (tmp_path / 'd').exists()
 
 
+def test_a_flight_set_in_a_directory_of_another_is_one_clear_line(tmp_path):
+    (tmp_path / 'flights.json').write_text('{"set": "development", "seed": 1}')
+    out = run_cli('simulate-flights', '--set', 'heldout', '--seed', '2', '--out', str(tmp_path))
+    assert out.returncode == 2 and 'Traceback' not in out.stderr, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and 'holds another flight set' in lines[0], out.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['flights.json']
+
+
 def test_train_anchor_data_is_checked_in_one_line(tmp_path):
     """An anchor set must be held out of the fine-tuning and needs the anchored calibration
     (also under the option's former name, --guard-data)."""
