@@ -4,7 +4,11 @@ In follow mode (no fixed centre) the window's XY sits on whole tiles around the 
 projection and scrolls when the sensor moves more than ``map.recenter_distance`` from its
 centre; vertically it sits around the ground under the sensor (the median height of the
 cloud's returns) and moves when that drifts past half the margin to the nearer window face. In
-fixed mode the XY never moves and the height is placed once, from the first cloud.
+fixed mode the XY never moves; the height is placed from the first cloud, then follows the
+ground at the region's centre (the median height of the returns within :data:`CENTRAL` of the
+window's edge of it, once :data:`CENTRAL_RETURNS` of a cloud fall there) the same way. On a
+sloped site the first cloud, often flown beyond the region's edge, may stand metres above or
+below its centre; placed there, the far side of the region would leave the window.
 """
 from __future__ import annotations
 
@@ -17,7 +21,10 @@ from scipy.ndimage import binary_dilation
 from landing_zone.config import MapConfig
 from landing_zone.mapping.density_map import DensityMap
 
-__all__ = ['Window']
+__all__ = ['Window', 'CENTRAL', 'CENTRAL_RETURNS']
+
+CENTRAL = 0.25  # share of the window's edge around a fixed centre whose returns place its height
+CENTRAL_RETURNS = 200  # returns a cloud must have there to move the height
 
 
 def _median_within(z: np.ndarray, lo: float, hi: float) -> bool:
@@ -98,9 +105,26 @@ class Window:
             if xy_moved or z_moved:
                 self.place(float(origin[0]), float(origin[1]),
                            ground if z_moved and ground is not None else float(c[2]))
-        elif z_moved and not self.placed_z and ground is not None:
-            self.place(self.fixed[0], self.fixed[1], ground)
+        elif not self.placed_z:
+            if ground is not None:
+                self.place(self.fixed[0], self.fixed[1], ground)
+        else:
+            centre = self._central_ground(points, c, tol)
+            if centre is not None:
+                self.place(self.fixed[0], self.fixed[1], centre)
         self.placed_z = self.placed_z or ground is not None
+
+    def _central_ground(self, points: np.ndarray, c: np.ndarray, tol: float) -> float | None:
+        """Fixed mode: the ground at the region's centre where this cloud shows it standing more
+        than ``tol`` from the window's ground level (None: it does not, or it shows too little
+        of the centre)."""
+        half = CENTRAL * self.config.size_xy / 2
+        near = (np.abs(points[:, 0] - c[0]) <= half) & (np.abs(points[:, 1] - c[1]) <= half)
+        z = points[near, 2]
+        z = z[np.isfinite(z)]
+        if z.size < CENTRAL_RETURNS or _median_within(z, c[2] - tol, c[2] + tol):
+            return None
+        return float(np.median(z))
 
     def dirty_tiles(self, reach: int) -> np.ndarray:
         """(K, 2) global indices of the tiles to re-extract: the window's changed ones and the

@@ -105,6 +105,28 @@ def test_fixed_mode_never_scrolls(model_file):
     assert np.array_equal(Assessor(cfg, model=model_file).map.lo[:2], lo0)
 
 
+def test_fixed_mode_height_follows_the_ground_at_the_centre(model_file):
+    from landing_zone.mapping.window import CENTRAL_RETURNS
+
+    a = Assessor(small_config(), center=(0.0, 0.0), model=model_file)
+    rng = np.random.default_rng(4)
+    lo0 = a.map.lo[:2].copy()
+    # the first cloud, flown beyond the region's edge, sees ground 2.5 m higher than its centre
+    s = np.array([9.0, 0.0, 10.5])
+    a.integrate(scene_cloud(rng, s, half=1.5, ground=2.5), s)
+    assert abs(a.center[2] - 2.5) < 0.1
+    # a few returns at the centre are not enough to move it
+    s = np.array([0.0, 0.0, 8.0])
+    a.integrate(scene_cloud(rng, s, n=CENTRAL_RETURNS // 2, half=0.5), s)
+    assert abs(a.center[2] - 2.5) < 0.1
+    # a cloud over the centre places it there; XY never moves
+    a.integrate(scene_cloud(rng, s, half=3.0), s)
+    assert abs(a.center[2]) < 0.1 and np.array_equal(a.map.lo[:2], lo0)
+    r = a.assess()
+    centre = r.lookup(0.5, 0.5)
+    assert np.isfinite(r.ground_z[centre]) and abs(r.ground_z[centre]) < 0.1
+
+
 def test_judged_tiles_are_the_networks_output_and_others_unknown(model_file):
     from landing_zone.judging.inference import predict
     from landing_zone.judging.tiles import extract_tiles
