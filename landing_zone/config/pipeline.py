@@ -102,7 +102,7 @@ class ModelConfig:
     batch_size: int = param(256, 'Tiles per forward pass', '', (1, 65536))
     # The model is calibrated at the share its metadata states (an even one: the training
     # scenes'); stating the site's own share moves every logit by the change in prior log odds
-    # (docs/LANDING_SITES.md, "A site's P(safe)"). A lower share raises P(safe) everywhere:
+    # (docs/ROS_NODE.md, "What a planner reads"). A lower share raises P(safe) everywhere:
     # raise landing_sites.min_p_safe with it to keep the same decisions.
     obstacle_prior: float = param(
         0.5, 'Share of tiles expected to hold an obstacle, at which P(safe) is calibrated', '',

@@ -86,12 +86,18 @@ class Window:
 
     def follow_cloud(self, points: np.ndarray, origin: np.ndarray) -> None:
         """Move the window, if need be, for a cloud of ``points`` seen from ``origin``."""
-        z = points[:, 2]
-        z = z[np.isfinite(z)]
         mc = self.config
         c = self.center
         z_margin = min(mc.z_below, mc.size_z - mc.z_below)
         tol = max(z_margin / 2, mc.voxel_size)
+        if self.fixed is not None and self.placed_z:
+            # fixed and placed: only the ground at the region's centre moves the height
+            centre = self._central_ground(points, c, tol)
+            if centre is not None:
+                self.place(self.fixed[0], self.fixed[1], centre)
+            return
+        z = points[:, 2]
+        z = z[np.isfinite(z)]
         # the ground under the sensor: the median height of the returns (most hit the ground);
         # a cloud without finite returns says nothing about it
         ground = None
@@ -105,13 +111,8 @@ class Window:
             if xy_moved or z_moved:
                 self.place(float(origin[0]), float(origin[1]),
                            ground if z_moved and ground is not None else float(c[2]))
-        elif not self.placed_z:
-            if ground is not None:
-                self.place(self.fixed[0], self.fixed[1], ground)
-        else:
-            centre = self._central_ground(points, c, tol)
-            if centre is not None:
-                self.place(self.fixed[0], self.fixed[1], centre)
+        elif ground is not None:  # fixed, the first cloud with returns: placed from it
+            self.place(self.fixed[0], self.fixed[1], ground)
         self.placed_z = self.placed_z or ground is not None
 
     def _central_ground(self, points: np.ndarray, c: np.ndarray, tol: float) -> float | None:
