@@ -37,6 +37,20 @@ POSE_HELP = ('Pose topic: PoseStamped of the sensor, or Odometry of the body (th
              'from the bag).')
 
 
+def comma_list(text: str | None) -> tuple[str, ...]:
+    """The items of a comma-separated option, stripped, empty ones dropped (None: none)."""
+    return tuple(t.strip() for t in (text or '').split(',') if t.strip())
+
+
+def obstacle_choice(kinds: str | None, families: str | None,
+                    default_kinds: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """``--kinds`` and ``--families`` as (kinds, families): the kinds given, else none where
+    families are given, else ``default_kinds``."""
+    fams = comma_list(families)
+    chosen = comma_list(kinds) if kinds is not None else () if fams else default_kinds
+    return chosen, fams
+
+
 def config_options(cls: type, names: Sequence[str] | Mapping[str, str], *,
                    defaults: Mapping[str, Any] | None = None,
                    helps: Mapping[str, str] | None = None) -> list[inspect.Parameter]:

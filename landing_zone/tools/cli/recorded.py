@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from landing_zone.tools.cli.options import POINTS_HELP, POSE_HELP
+from landing_zone.tools.cli.options import POINTS_HELP, POSE_HELP, obstacle_choice
 
 app = typer.Typer()
 
@@ -57,11 +57,8 @@ def insert_obstacles(
 ) -> None:
     from landing_zone.tools.sim.insert import DEFAULT_KINDS, insert_obstacles as run_insert
 
-    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
-               else () if families else DEFAULT_KINDS)
-    r = run_insert(bag, out, count=count, seed=seed, kinds=kinds_t,
-                   families=tuple(f.strip() for f in (families or '').split(',') if f.strip()),
-                   group=group,
+    kinds_t, fams = obstacle_choice(kinds, families, DEFAULT_KINDS)
+    r = run_insert(bag, out, count=count, seed=seed, kinds=kinds_t, families=fams, group=group,
                    region=region, labels=labels, points_topic=points_topic,
                    pose_topic=pose_topic, frame_id=frame_id, range_sigma=range_noise,
                    overwrite=overwrite)

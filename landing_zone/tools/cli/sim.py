@@ -11,7 +11,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from landing_zone.tools.cli.options import ADDRESS_HELP, ENGINE_HELP, Engine
+from landing_zone.tools.cli.options import (ADDRESS_HELP, ENGINE_HELP, Engine, comma_list,
+                                            obstacle_choice)
 
 app = typer.Typer()
 
@@ -108,8 +109,7 @@ def simulate(
                              address=address,
                              families=None if families is None else parse_families(families),
                              edge=edge,
-                             vegetation=None if vegetation is None else tuple(
-                                 f.strip() for f in vegetation.split(',') if f.strip()))
+                             vegetation=None if vegetation is None else comma_list(vegetation))
     print(f'{s["dataset"]}: {s["scenes"]} scenes in {s["out"]} ({s["generated"]} simulated, '
           f'{s["skipped"]} already there) in {s["seconds"]:.1f} s with {s["workers"]} '
           f'worker(s){" on Ray" if engine is Engine.ray else ""}, {s["scenes_per_s"]:.1f} '
@@ -199,9 +199,7 @@ def simulate_flight(
     from landing_zone.tools.sim.flight import flight_config, simulate_flight as run_flight
     from landing_zone.tools.sim.placement import DEFAULT_KINDS
 
-    fams = tuple(f.strip() for f in (families or '').split(',') if f.strip())
-    kinds_t = (tuple(k.strip() for k in kinds.split(',') if k.strip()) if kinds is not None
-               else () if fams else DEFAULT_KINDS)
+    kinds_t, fams = obstacle_choice(kinds, families, DEFAULT_KINDS)
     cfg = flight_config(vegetation, scan_pattern, density=density, size=size,
                         obstacles=obstacles, kinds=kinds_t, families=fams,
                         slope=slope, slope_azimuth=math.radians(slope_azimuth),
