@@ -9,7 +9,6 @@ obstacle's footprint overlapping the tile makes it unsafe). Obstacle and safe ti
 evenly (the prior the calibration states); quarter turns and mirror images augment them.
 """
 import argparse
-import json
 import time
 from pathlib import Path
 
