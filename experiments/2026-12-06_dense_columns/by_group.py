@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / '2026-12-06_site_normalisation'))
+from analyse import as_judged  # noqa: E402
+
 test, grids = Path(sys.argv[1]), np.load(sys.argv[2])
 rows = {}
 for name in grids.files:
     z = np.load(test / f'{name}.npz')
     t, ship = z['truth'], z['p_safe'].astype(np.float64)
-    new = np.where(np.isfinite(ship), grids[name], np.nan)
-    g = z['guard'] if 'guard' in z.files else None
-    if g is not None:
-        new = np.where(np.nan_to_num(g) > 0, np.minimum(new, 0.05), new)
+    new = as_judged(dict(z), grids[name])
     j = (t >= 0) & np.isfinite(ship)
     _, family, veg = name.split('_', 2)
     for key in (family, veg):

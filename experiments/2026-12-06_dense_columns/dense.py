@@ -33,7 +33,7 @@ from torch import nn
 from landing_zone.io.labels import labels_extent, obstacle_footprints, read_labels
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / '2026-12-06_site_normalisation'))
-from analyse import figures, show  # noqa: E402
+from analyse import as_judged, figures, show  # noqa: E402
 
 PAD, COL = 0.3, 0.1          # the cube's context each side and its pooled column [m]
 SIDE = 16
@@ -190,11 +190,7 @@ def main():
             ij = f['cube_index'] - f['origin']
             grid[ij[:, 0], ij[:, 1]] = expit(-predict(net, f['cubes']) / T + b)
             cache[key] = grid
-        p = np.where(np.isfinite(f['p_safe']), cache[key], np.nan)
-        g = f.get('guard')
-        if g is not None:
-            p = np.where(np.nan_to_num(g) > 0, np.minimum(p, 0.05), p)
-        return p
+        return as_judged(f, cache[key])
 
     print(f'{len(test)} held-out flights')
     show('shipped', figures(test, lambda f: f['p_safe'].astype(np.float64)))

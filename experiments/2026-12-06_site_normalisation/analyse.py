@@ -96,12 +96,18 @@ def model_rule(path):
             ij = f['cube_index'] - f['origin']
             grid[ij[:, 0], ij[:, 1]] = expit(lg / net.temperature + net.offset)
             cache[key] = grid
-        p = np.where(np.isfinite(f['p_safe']), cache[key], np.nan)
-        g = f.get('guard')
-        if g is not None:
-            p = np.where(np.nan_to_num(g) > 0, np.minimum(p, 0.05), p)
-        return p
+        return as_judged(f, cache[key])
     return rule
+
+
+def as_judged(f, p):
+    """A candidate's P(safe) grid ``p`` as the onboard judgement would give it: the tiles the
+    shipped judgement left unknown stay unknown and the guard's cap holds."""
+    p = np.where(np.isfinite(f['p_safe']), p, np.nan)
+    g = f.get('guard')
+    if g is not None:
+        p = np.where(np.nan_to_num(g) > 0, np.minimum(p, 0.05), p)
+    return p
 
 
 def site_norm(q=50, ref=3.0, only_up=True, cap=None, src='p_safe'):
